@@ -1,0 +1,89 @@
+"""Command line: `python -m pipeline <command> --help`. Each DVC stage is one command."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from pipeline.io import InputError
+from pipeline.params import ParamError, load_params
+from pipeline.routes import RouteGenerationError
+
+log = logging.getLogger("pipeline")
+
+
+def _routes(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_routes
+    run_routes(load_params(args.params), Path(args.out))
+
+
+def _simulate(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_simulate
+    run_simulate(load_params(args.params), Path(args.routes), Path(args.out))
+
+
+def _data_report(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_data_report
+    run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
+
+
+def _readme(args: argparse.Namespace) -> int:
+    from pipeline.readme import update_readme
+    changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
+    if args.check and changed:
+        log.error("%s: generated tables are out of date; run `python -m pipeline readme`", args.readme)
+        return 1
+    return 0
+
+
+COMMANDS = {
+    "routes": (_routes, "Simulate aircraft routes (truth) for every split.",
+               "python -m pipeline routes --params params.yaml --out data/routes"),
+    "simulate": (_simulate, "Run the rotating radar over the routes: plots, per-scan truth, radar description.",
+                 "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated"),
+    "data-report": (_data_report, "Metrics (data.json) and pictures of the simulated data.",
+                    "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports"),
+    "readme": (_readme, "Regenerate the README's results tables from reports/.",
+               "python -m pipeline readme --check"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
+    parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (handler, summary, example) in COMMANDS.items():
+        command = commands.add_parser(name, help=summary, description=summary, epilog=f"example:\n  {example}",
+                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+        command.set_defaults(handler=handler)
+        if name != "readme":
+            command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
+        if name == "routes":
+            command.add_argument("--out", default="data/routes", help="output folder (default: %(default)s)")
+        if name in ("simulate", "data-report"):
+            command.add_argument("--routes", default="data/routes", help="routes folder (default: %(default)s)")
+        if name == "simulate":
+            command.add_argument("--out", default="data/simulated", help="output folder (default: %(default)s)")
+        if name == "data-report":
+            command.add_argument("--simulated", default="data/simulated",
+                                 help="simulated data folder (default: %(default)s)")
+            command.add_argument("--out", default="reports", help="reports folder (default: %(default)s)")
+        if name == "readme":
+            command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
+            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
+            command.add_argument("--check", action="store_true",
+                                 help="do not write; exit 1 if the README's tables are out of date")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    try:
+        return args.handler(args) or 0
+    except (ParamError, InputError, RouteGenerationError) as error:
+        log.error("%s", error)
+        return 2

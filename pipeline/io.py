@@ -1,0 +1,96 @@
+"""Files in and out: atomic writes, and Parquet reads that name what is wrong.
+
+Every output is written to a temporary file beside its destination and renamed into
+place, so an interrupted stage never leaves a half file that the next stage (or DVC)
+would take for a result.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+
+class InputError(ValueError):
+    """An input file is missing or malformed; the message names the file and the column."""
+
+
+@contextmanager
+def atomic_path(destination: str | Path) -> Iterator[Path]:
+    """Yield a temporary path to write to; it replaces `destination` only if the block succeeds."""
+    destination = Path(destination)
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.", suffix=".tmp", dir=destination.parent)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.replace(temporary, destination)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_parquet(table: pa.Table, destination: str | Path) -> None:
+    """Write a table deterministically (same table, same bytes) and atomically."""
+    with atomic_path(destination) as temporary:
+        pq.write_table(table, temporary, compression="zstd", write_statistics=True)
+
+
+def write_json(data: Any, destination: str | Path) -> None:
+    with atomic_path(destination) as temporary:
+        temporary.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+
+
+def write_text(text: str, destination: str | Path) -> None:
+    with atomic_path(destination) as temporary:
+        temporary.write_text(text)
+
+
+def write_bytes(data: bytes, destination: str | Path) -> None:
+    with atomic_path(destination) as temporary:
+        temporary.write_bytes(data)
+
+
+def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] = ()) -> pa.Table:
+    """Read a Parquet file and check it against a schema.
+
+    Columns must be present (unless listed in `optional`) with the schema's type, and
+    non-nullable float columns must hold no NaN. Extra columns are dropped.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as error:
+        raise InputError(f"{path}: not a readable Parquet file ({error})") from None
+    columns = {}
+    for field in schema:
+        if field.name not in table.column_names:
+            if field.name in optional:
+                columns[field.name] = pa.nulls(table.num_rows, field.type)
+                continue
+            raise InputError(f"{path}: column '{field.name}' is missing (expected {field.type})")
+        column = table.column(field.name)
+        if not column.type.equals(field.type):
+            try:
+                column = column.cast(field.type)
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type}") from None
+        if not field.nullable and column.null_count:
+            raise InputError(f"{path}: column '{field.name}' has {column.null_count} missing values")
+        if pa.types.is_floating(field.type) and not field.nullable:
+            nan = np.isnan(column.to_numpy(zero_copy_only=False))
+            if nan.any():
+                raise InputError(f"{path}: column '{field.name}' is NaN in {int(nan.sum())} rows "
+                                 f"(first at row {int(np.argmax(nan))})")
+        columns[field.name] = column
+    return pa.Table.from_arrays(list(columns.values()), schema=schema)

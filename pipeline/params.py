@@ -1,0 +1,304 @@
+"""Load `params.yaml` into typed, validated objects.
+
+Every stage reads its knobs through here so that a bad value stops the stage before it
+writes anything, with a message naming the key and the value (``radar.latitude_deg =
+95.0: must be in [-90, 90]``) instead of a traceback deep inside the simulation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+STRATEGIES = ("constant_jerk", "random_turns")
+
+
+class ParamError(ValueError):
+    """A value in params.yaml is missing or invalid; the message names the key."""
+
+
+@dataclass(frozen=True)
+class Radar:
+    sac: int
+    sic: int
+    latitude_deg: float
+    longitude_deg: float
+    height_m: float
+    rotation_rpm: float
+    range_max_m: float
+    range_min_m: float
+    altitude_max_m: float
+    sigma_range_m: float
+    sigma_azimuth_deg: float
+    sigma_altitude_m: float
+    reference_snr_db: float
+    reference_range_m: float
+    reference_rcs_m2: float
+    false_alarm_probability: float
+    false_plots_per_scan: float
+    horizon: bool
+    effective_earth_radius_factor: float
+
+    @property
+    def radar_id(self) -> int:
+        """SAC and SIC packed as ASTERIX data source identifiers usually are."""
+        return self.sac * 256 + self.sic
+
+    @property
+    def scan_period_s(self) -> float:
+        return 60.0 / self.rotation_rpm
+
+
+@dataclass(frozen=True)
+class Aircraft:
+    name: str
+    speed_min_mps: float
+    speed_max_mps: float
+    max_turn_rate_dps: float
+    max_acceleration_mps2: float
+    altitude_min_m: float
+    altitude_max_m: float
+    rcs_front_m2: float
+    rcs_side_m2: float
+
+
+@dataclass(frozen=True)
+class ConstantJerk:
+    waypoints_min: int
+    waypoints_max: int
+    min_leg_m: float
+    max_leg_m: float
+    attempts: int
+
+
+@dataclass(frozen=True)
+class RandomTurns:
+    length_min_m: float
+    length_max_m: float
+    turn_duration_min_s: float
+    turn_duration_max_s: float
+    min_length_m: float
+
+
+@dataclass(frozen=True)
+class Split:
+    name: str
+    counts: Mapping[str, int]
+    seed: int
+    aircraft_mix: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class Routes:
+    sample_interval_s: float
+    start_time_unix_s: float
+    start_spread_s: float
+    constant_jerk: ConstantJerk
+    random_turns: RandomTurns
+    splits: tuple[Split, ...]
+
+    def split(self, name: str) -> Split:
+        for split in self.splits:
+            if split.name == name:
+                return split
+        raise ParamError(f"routes.splits.{name}: no such split (have {[s.name for s in self.splits]})")
+
+
+@dataclass(frozen=True)
+class Params:
+    radar: Radar
+    aircraft: Mapping[str, Aircraft]
+    routes: Routes
+    simulate_seed: int
+    example_routes: int
+
+
+def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
+    if not isinstance(tree, Mapping) or key not in tree:
+        raise ParamError(f"{path}.{key}: missing")
+    return tree[key]
+
+
+def _number(tree: Mapping[str, Any], key: str, path: str, low: float = -math.inf,
+            high: float = math.inf, low_open: bool = False) -> float:
+    value = _get(tree, key, path)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ParamError(f"{path}.{key} = {value!r}: must be a finite number")
+    if value < low or value > high or (low_open and value == low):
+        bracket = "(" if low_open else "["
+        raise ParamError(f"{path}.{key} = {value!r}: must be in {bracket}{low}, {high}]")
+    return float(value)
+
+
+def _positive(tree: Mapping[str, Any], key: str, path: str) -> float:
+    return _number(tree, key, path, 0.0, low_open=True)
+
+
+def _integer(tree: Mapping[str, Any], key: str, path: str, low: int = 0) -> int:
+    value = _get(tree, key, path)
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ParamError(f"{path}.{key} = {value!r}: must be an integer >= {low}")
+    return value
+
+
+def _interval(tree: Mapping[str, Any], key: str, path: str, low: float = 0.0) -> tuple[float, float]:
+    value = _get(tree, key, path)
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ParamError(f"{path}.{key} = {value!r}: must be a [lower, upper] pair")
+    pair = {"lower": value[0], "upper": value[1]}
+    lower = _number(pair, "lower", f"{path}.{key}", low)
+    upper = _number(pair, "upper", f"{path}.{key}", low)
+    if lower > upper:
+        raise ParamError(f"{path}.{key} = {value!r}: lower bound {lower} is above upper bound {upper}")
+    return lower, upper
+
+
+def _radar(tree: Mapping[str, Any]) -> Radar:
+    p = "radar"
+    radar = Radar(
+        sac=_integer(tree, "sac", p),
+        sic=_integer(tree, "sic", p),
+        latitude_deg=_number(tree, "latitude_deg", p, -90.0, 90.0),
+        longitude_deg=_number(tree, "longitude_deg", p, -180.0, 180.0),
+        height_m=_number(tree, "height_m", p, -500.0, 10000.0),
+        rotation_rpm=_positive(tree, "rotation_rpm", p),
+        range_max_m=_positive(tree, "range_max_m", p),
+        range_min_m=_number(tree, "range_min_m", p, 0.0),
+        altitude_max_m=_positive(tree, "altitude_max_m", p),
+        sigma_range_m=_number(tree, "sigma_range_m", p, 0.0),
+        sigma_azimuth_deg=_number(tree, "sigma_azimuth_deg", p, 0.0),
+        sigma_altitude_m=_number(tree, "sigma_altitude_m", p, 0.0),
+        reference_snr_db=_number(tree, "reference_snr_db", p),
+        reference_range_m=_positive(tree, "reference_range_m", p),
+        reference_rcs_m2=_positive(tree, "reference_rcs_m2", p),
+        false_alarm_probability=_number(tree, "false_alarm_probability", p, 0.0, 1.0, low_open=True),
+        false_plots_per_scan=_number(tree, "false_plots_per_scan", p, 0.0),
+        horizon=bool(_get(tree, "horizon", p)),
+        effective_earth_radius_factor=_positive(tree, "effective_earth_radius_factor", p),
+    )
+    if radar.sac > 255 or radar.sic > 255:
+        raise ParamError(f"radar.sac/sic = {radar.sac}/{radar.sic}: each must fit in one byte (0-255)")
+    if radar.range_min_m >= radar.range_max_m:
+        raise ParamError(f"radar.range_min_m = {radar.range_min_m}: must be below range_max_m = {radar.range_max_m}")
+    return radar
+
+
+def _aircraft(name: str, tree: Mapping[str, Any]) -> Aircraft:
+    p = f"aircraft.{name}"
+    speed = _interval(tree, "speed_mps", p)
+    altitude = _interval(tree, "altitude_m", p)
+    if speed[0] <= 0.0:
+        raise ParamError(f"{p}.speed_mps = {list(speed)}: speeds must be positive")
+    return Aircraft(
+        name=name,
+        speed_min_mps=speed[0],
+        speed_max_mps=speed[1],
+        max_turn_rate_dps=_positive(tree, "max_turn_rate_dps", p),
+        max_acceleration_mps2=_positive(tree, "max_acceleration_mps2", p),
+        altitude_min_m=altitude[0],
+        altitude_max_m=altitude[1],
+        rcs_front_m2=_positive(tree, "rcs_front_m2", p),
+        rcs_side_m2=_positive(tree, "rcs_side_m2", p),
+    )
+
+
+def _split(name: str, tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft]) -> Split:
+    p = f"routes.splits.{name}"
+    counts = {strategy: _integer(tree, strategy, p) for strategy in STRATEGIES}
+    mix_tree = _get(tree, "aircraft_mix", p)
+    if not isinstance(mix_tree, Mapping) or not mix_tree:
+        raise ParamError(f"{p}.aircraft_mix = {mix_tree!r}: must map aircraft types to weights")
+    for kind in mix_tree:
+        if kind not in aircraft:
+            raise ParamError(f"{p}.aircraft_mix.{kind}: unknown aircraft type (known: {sorted(aircraft)})")
+    mix = {kind: _number(mix_tree, kind, f"{p}.aircraft_mix", 0.0) for kind in mix_tree}
+    if sum(mix.values()) <= 0.0:
+        raise ParamError(f"{p}.aircraft_mix = {dict(mix)}: weights must not all be zero")
+    return Split(name=name, counts=counts, seed=_integer(tree, "seed", p), aircraft_mix=mix)
+
+
+def _start_time(text: Any) -> float:
+    try:
+        moment = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
+    except ValueError as error:
+        raise ParamError(f"routes.start_time_utc = {text!r}: not an ISO 8601 time ({error})") from None
+    if moment.tzinfo is None:
+        raise ParamError(f"routes.start_time_utc = {text!r}: give a time zone, e.g. a trailing Z for UTC")
+    return moment.timestamp()
+
+
+def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Radar) -> Routes:
+    p = "routes"
+    cj = _get(tree, "constant_jerk", p)
+    waypoints = _interval(cj, "waypoints", f"{p}.constant_jerk")
+    legs = (_positive(cj, "min_leg_m", f"{p}.constant_jerk"), _positive(cj, "max_leg_m", f"{p}.constant_jerk"))
+    if legs[0] > legs[1]:
+        raise ParamError(f"{p}.constant_jerk.min_leg_m = {legs[0]}: above max_leg_m = {legs[1]}")
+    if waypoints[0] < 2 or waypoints[0] != int(waypoints[0]) or waypoints[1] != int(waypoints[1]):
+        raise ParamError(f"{p}.constant_jerk.waypoints = {list(waypoints)}: must be integers >= 2")
+    rt = _get(tree, "random_turns", p)
+    length = _interval(rt, "length_m", f"{p}.random_turns")
+    duration = _interval(rt, "turn_duration_s", f"{p}.random_turns")
+    if duration[0] <= 0.0:
+        raise ParamError(f"{p}.random_turns.turn_duration_s = {list(duration)}: durations must be positive")
+    splits_tree = _get(tree, "splits", p)
+    if not isinstance(splits_tree, Mapping) or not splits_tree:
+        raise ParamError(f"{p}.splits = {splits_tree!r}: must name at least one split")
+    splits = tuple(_split(name, splits_tree[name], aircraft) for name in splits_tree)
+    seeds = [split.seed for split in splits]
+    if len(set(seeds)) != len(seeds):
+        raise ParamError(f"{p}.splits seeds = {seeds}: every split needs its own seed so no route repeats")
+    for kind in aircraft.values():
+        if kind.altitude_max_m > radar.altitude_max_m:
+            raise ParamError(f"aircraft.{kind.name}.altitude_m upper bound {kind.altitude_max_m} is above "
+                             f"radar.altitude_max_m = {radar.altitude_max_m}: routes must stay in coverage")
+    return Routes(
+        sample_interval_s=_positive(tree, "sample_interval_s", p),
+        start_time_unix_s=_start_time(_get(tree, "start_time_utc", p)),
+        start_spread_s=_number(tree, "start_spread_s", p, 0.0),
+        constant_jerk=ConstantJerk(int(waypoints[0]), int(waypoints[1]), legs[0], legs[1],
+                                   _integer(cj, "attempts", f"{p}.constant_jerk", 1)),
+        random_turns=RandomTurns(length[0], length[1], duration[0], duration[1],
+                                 _number(rt, "min_length_m", f"{p}.random_turns", 0.0)),
+        splits=splits,
+    )
+
+
+def parse_params(tree: Mapping[str, Any]) -> Params:
+    """Validate a params tree (as read from YAML) and return typed params."""
+    radar = _radar(_get(tree, "radar", "params"))
+    aircraft_tree = _get(tree, "aircraft", "params")
+    if not isinstance(aircraft_tree, Mapping) or not aircraft_tree:
+        raise ParamError(f"aircraft = {aircraft_tree!r}: must define at least one aircraft type")
+    aircraft = {name: _aircraft(name, aircraft_tree[name]) for name in aircraft_tree}
+    simulate = _get(tree, "simulate", "params")
+    report = _get(tree, "report", "params")
+    return Params(
+        radar=radar,
+        aircraft=aircraft,
+        routes=_routes(_get(tree, "routes", "params"), aircraft, radar),
+        simulate_seed=_integer(simulate, "seed", "simulate"),
+        example_routes=_integer(report, "example_routes", "report", 1),
+    )
+
+
+def load_params(path: str | Path = "params.yaml") -> Params:
+    """Read and validate a params file; errors name the file, the key and the value."""
+    path = Path(path)
+    try:
+        tree = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamError(f"{path}: params file not found") from None
+    except yaml.YAMLError as error:
+        raise ParamError(f"{path}: not valid YAML ({error})") from None
+    if not isinstance(tree, Mapping):
+        raise ParamError(f"{path}: must hold a mapping of sections, got {type(tree).__name__}")
+    try:
+        return parse_params(tree)
+    except ParamError as error:
+        raise ParamError(f"{path}: {error}") from None

@@ -1,0 +1,64 @@
+"""Helpers for tests that run the pipeline as a user does: tiny params, a copy of the repository."""
+
+from __future__ import annotations
+
+import copy
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+
+
+def default_params_tree() -> dict[str, Any]:
+    return yaml.safe_load((REPOSITORY / "params.yaml").read_text())
+
+
+def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
+    """The default params with a handful of routes per split, for runs of a few seconds."""
+    tree = copy.deepcopy(default_params_tree())
+    for split in tree["routes"]["splits"].values():
+        split["constant_jerk"] = routes_per_strategy
+        split["random_turns"] = routes_per_strategy
+    tree["report"]["example_routes"] = 1
+    return tree
+
+
+def write_params(tree: dict[str, Any], path: Path) -> Path:
+    path.write_text(yaml.safe_dump(tree, sort_keys=False))
+    return path
+
+
+def environment() -> dict[str, str]:
+    """The test's environment, with this interpreter's folder first on PATH so DVC's `python` is ours."""
+    env = dict(os.environ)
+    env["PATH"] = str(Path(sys.executable).parent) + os.pathsep + env.get("PATH", "")
+    return env
+
+
+def run_pipeline(*arguments: str, cwd: Path = REPOSITORY) -> subprocess.CompletedProcess:
+    """`python -m pipeline ...` in a fresh process, output captured."""
+    return subprocess.run([sys.executable, "-m", "pipeline", *arguments], cwd=cwd, env=environment(),
+                          capture_output=True, text=True)
+
+
+def copy_repository(destination: Path) -> Path:
+    """The files git would give a fresh clone (tracked or not ignored), in a new git repository."""
+    listing = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
+                             cwd=REPOSITORY, capture_output=True, text=True, check=True).stdout
+    for name in filter(None, listing.split("\0")):
+        source = REPOSITORY / name
+        if source.is_file():
+            target = destination / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
+    git = ["git", "-c", "user.name=test", "-c", "user.email=test@example.invalid"]
+    subprocess.run(["git", "init", "-q"], cwd=destination, check=True)
+    subprocess.run([*git, "add", "-A"], cwd=destination, check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "copy"], cwd=destination, check=True)
+    return destination

@@ -1,0 +1,86 @@
+"""The command line as a user meets it: help, clear errors, no partial output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline import io
+from pipeline.cli import COMMANDS
+from tests.project import run_pipeline, tiny_params_tree, write_params
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_command_has_help_with_an_example(command: str) -> None:
+    """`--help` works for each command and shows how to call it."""
+    result = run_pipeline(command, "--help")
+    assert result.returncode == 0
+    assert "example:" in result.stdout and f"python -m pipeline {command}" in result.stdout
+
+
+def test_invalid_param_names_key_and_value_and_writes_nothing(tmp_path: Path) -> None:
+    """A bad radar latitude stops the stage before any output exists."""
+    tree = tiny_params_tree()
+    tree["radar"]["latitude_deg"] = 95.0
+    params = write_params(tree, tmp_path / "params.yaml")
+    result = run_pipeline("routes", "--params", str(params), "--out", str(tmp_path / "routes"))
+    assert result.returncode == 2
+    assert "radar.latitude_deg = 95.0" in result.stderr
+    assert not (tmp_path / "routes").exists()
+
+
+def test_missing_routes_file_is_named(tmp_path: Path) -> None:
+    """Simulating without routes names the missing file."""
+    params = write_params(tiny_params_tree(), tmp_path / "params.yaml")
+    result = run_pipeline("simulate", "--params", str(params), "--routes", str(tmp_path / "nowhere"),
+                          "--out", str(tmp_path / "simulated"))
+    assert result.returncode == 2
+    assert "nowhere/train.parquet: file not found" in result.stderr
+    assert not (tmp_path / "simulated").exists()
+
+
+def test_nan_or_missing_column_in_routes_is_named(tmp_path: Path) -> None:
+    """Malformed routes: the error names file and column."""
+    params = write_params(tiny_params_tree(), tmp_path / "params.yaml")
+    assert run_pipeline("routes", "--params", str(params), "--out", str(tmp_path / "routes")).returncode == 0
+    path = tmp_path / "routes" / "train.parquet"
+    table = pq.read_table(path)
+    x = table.column("x_ecef_m").to_numpy().copy()
+    x[3] = np.nan
+    pq.write_table(table.set_column(table.schema.get_field_index("x_ecef_m"), "x_ecef_m", pa.array(x)), path)
+    result = run_pipeline("simulate", "--params", str(params), "--routes", str(tmp_path / "routes"),
+                          "--out", str(tmp_path / "simulated"))
+    assert result.returncode == 2 and "train.parquet: column 'x_ecef_m' is NaN in 1 rows" in result.stderr
+    pq.write_table(table.drop_columns(["vz_ecef_mps"]), path)
+    result = run_pipeline("simulate", "--params", str(params), "--routes", str(tmp_path / "routes"),
+                          "--out", str(tmp_path / "simulated"))
+    assert result.returncode == 2 and "column 'vz_ecef_mps' is missing" in result.stderr
+    assert not (tmp_path / "simulated").exists()
+
+
+def test_corrupt_parquet_is_named(tmp_path: Path) -> None:
+    """A file that is not Parquet gives an error naming it, not a traceback."""
+    path = tmp_path / "train.parquet"
+    path.write_bytes(b"PAR1 this is not really parquet")
+    with pytest.raises(io.InputError, match="train.parquet: not a readable Parquet file"):
+        io.read_parquet(path, pa.schema([pa.field("x", pa.float64())]))
+
+
+def test_interrupted_write_leaves_no_file(tmp_path: Path) -> None:
+    """A failure while writing leaves neither the destination nor a temporary file."""
+    destination = tmp_path / "out.parquet"
+    with pytest.raises(RuntimeError):
+        with io.atomic_path(destination) as temporary:
+            temporary.write_bytes(b"half a file")
+            raise RuntimeError("killed half-way")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_readme_tables_match_reports() -> None:
+    """The README's results section is what `python -m pipeline readme` generates from reports/."""
+    result = run_pipeline("readme", "--check")
+    assert result.returncode == 0, result.stderr
