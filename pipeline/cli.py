@@ -29,6 +29,11 @@ def _data_report(args: argparse.Namespace) -> None:
     run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
 
 
+def _windows(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_windows
+    run_windows(load_params(args.params), Path(args.simulated), Path(args.out), Path(args.reports))
+
+
 def _readme(args: argparse.Namespace) -> int:
     from pipeline.readme import update_readme
     changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
@@ -45,6 +50,8 @@ COMMANDS = {
                  "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated"),
     "data-report": (_data_report, "Metrics (data.json) and pictures of the simulated data.",
                     "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports"),
+    "windows": (_windows, "Cut the simulated plots into balanced, scaled training windows and a hold-out.",
+                "python -m pipeline windows --simulated data/simulated --out data/windows --reports reports"),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
                "python -m pipeline readme --check"),
 }
@@ -62,6 +69,11 @@ def build_parser() -> argparse.ArgumentParser:
             command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
         if name == "routes":
             command.add_argument("--out", default="data/routes", help="output folder (default: %(default)s)")
+        if name == "windows":
+            command.add_argument("--simulated", default="data/simulated",
+                                 help="simulated data folder (default: %(default)s)")
+            command.add_argument("--out", default="data/windows", help="output folder (default: %(default)s)")
+            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
         if name in ("simulate", "data-report"):
             command.add_argument("--routes", default="data/routes", help="routes folder (default: %(default)s)")
         if name == "simulate":

@@ -99,3 +99,19 @@ def radar_statistics(plots: pa.Table, truth: pa.Table) -> bytes:
     axes[2].legend(fontsize=8)
     figure.tight_layout()
     return _png(figure)
+
+
+def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bins: int) -> bytes:
+    """Linearity of each material's windows before and after balancing."""
+    figure, axes = plt.subplots(1, len(materials), figsize=(5 * len(materials), 3.8))
+    for axis, (name, (before, after)) in zip(np.atleast_1d(axes), materials.items()):
+        edges = np.linspace(before.min(), before.max(), bins + 1) if len(before) else np.linspace(0, 1, bins + 1)
+        axis.hist(before, bins=edges, color="tab:grey", alpha=0.6, label=f"before ({len(before):,})")
+        axis.hist(after, bins=edges, color="tab:blue", alpha=0.8, label=f"after ({len(after):,})")
+        axis.set_yscale("log")
+        axis.set_xlabel("linearity (eq. 4.7), 1 = straight")
+        axis.set_ylabel("windows")
+        axis.set_title(name)
+        axis.legend(fontsize=8, loc="upper left")
+    figure.tight_layout()
+    return _png(figure)

@@ -39,12 +39,18 @@ def site_ecef(latitude_deg: float, longitude_deg: float, height_m: float) -> np.
 
 def enu_rotation(latitude_deg: float, longitude_deg: float) -> np.ndarray:
     """Eq. 4.6: S1, whose rows are the east, north and up unit vectors in ECEF."""
+    return enu_rotations(np.array([latitude_deg]), np.array([longitude_deg]))[0]
+
+
+def enu_rotations(latitude_deg: np.ndarray, longitude_deg: np.ndarray) -> np.ndarray:
+    """S1 of eq. 4.6 for many sites at once (N x 3 x 3): ECEF offsets -> east, north, up."""
     lat, lon = np.radians(latitude_deg), np.radians(longitude_deg)
-    return np.array([
-        [-np.sin(lon), np.cos(lon), 0.0],
-        [-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)],
-        [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
-    ])
+    sin_lat, cos_lat, sin_lon, cos_lon = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    return np.stack([
+        np.stack([-sin_lon, cos_lon, np.zeros_like(lat)], axis=-1),
+        np.stack([-sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat], axis=-1),
+        np.stack([cos_lat * cos_lon, cos_lat * sin_lon, sin_lat], axis=-1),
+    ], axis=-2)
 
 
 def thesis_elevation(slant_range_m: np.ndarray, altitude_m: np.ndarray, radar_height_m: float,
@@ -68,7 +74,7 @@ def plot_to_ecef(slant_range_m: np.ndarray, azimuth_deg: np.ndarray, altitude_m:
         slant_range_m * np.sin(psi),
     ], axis=-1)
     rotation = enu_rotation(radar.latitude_deg, radar.longitude_deg)
-    return local @ rotation + site_ecef(radar.latitude_deg, radar.longitude_deg, radar.height_m)
+    return local @ rotation + radar_site_ecef(radar)
 
 
 def radar_site_ecef(radar: Radar) -> np.ndarray:

@@ -110,12 +110,32 @@ class Routes:
 
 
 @dataclass(frozen=True)
+class Windows:
+    segment_gap_s: float
+    holdout_fraction: float
+    seed: int
+    filter_length: int
+    predictor_inputs: int
+    autoencoder_length: int
+    calibration_max_delay_s: float
+    calibration_max_distance_m: float
+    balance_bins: int
+    balance_high_bins: int
+    frame: str
+    centre_range: bool
+    dt_max_s: float
+    position_max_diff_m: float
+    range_scale_m: float
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
     routes: Routes
     simulate_seed: int
     example_routes: int
+    windows: Windows
 
 
 def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
@@ -269,6 +289,34 @@ def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Ra
     )
 
 
+def _windows(tree: Mapping[str, Any]) -> Windows:
+    p = "windows"
+    frame = _get(tree, "frame", p)
+    if frame not in ("ecef", "enu"):
+        raise ParamError(f"{p}.frame = {frame!r}: must be 'ecef' or 'enu'")
+    windows = Windows(
+        segment_gap_s=_positive(tree, "segment_gap_s", p),
+        holdout_fraction=_number(tree, "holdout_fraction", p, 0.0, 1.0),
+        seed=_integer(tree, "seed", p),
+        filter_length=_integer(tree, "filter_length", p, 2),
+        predictor_inputs=_integer(tree, "predictor_inputs", p, 2),
+        autoencoder_length=_integer(tree, "autoencoder_length", p, 2),
+        calibration_max_delay_s=_positive(tree, "calibration_max_delay_s", p),
+        calibration_max_distance_m=_positive(tree, "calibration_max_distance_m", p),
+        balance_bins=_integer(tree, "balance_bins", p, 2),
+        balance_high_bins=_integer(tree, "balance_high_bins", p, 1),
+        frame=frame,
+        centre_range=bool(_get(tree, "centre_range", p)),
+        dt_max_s=_positive(tree, "dt_max_s", p),
+        position_max_diff_m=_positive(tree, "position_max_diff_m", p),
+        range_scale_m=_positive(tree, "range_scale_m", p),
+    )
+    if windows.balance_high_bins >= windows.balance_bins:
+        raise ParamError(f"{p}.balance_high_bins = {windows.balance_high_bins}: must be below "
+                         f"balance_bins = {windows.balance_bins}")
+    return windows
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params."""
     radar = _radar(_get(tree, "radar", "params"))
@@ -284,6 +332,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         routes=_routes(_get(tree, "routes", "params"), aircraft, radar),
         simulate_seed=_integer(simulate, "seed", "simulate"),
         example_routes=_integer(report, "example_routes", "report", 1),
+        windows=_windows(_get(tree, "windows", "params")),
     )
 
 
