@@ -1,4 +1,4 @@
-"""Time and memory of the `routes` and `simulate` stages with the default params.
+"""Time and memory of the `routes`, `simulate` and `windows` stages with the default params.
 
 Runs each stage as the pipeline does (`python -m pipeline ...`, a fresh process) into a
 temporary folder, a few times, and prints wall time and peak resident memory.
@@ -37,7 +37,8 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         routes, simulated = Path(folder) / "routes", Path(folder) / "simulated"
-        timings: dict[str, list[float]] = {"routes": [], "simulate": []}
+        windows, reports = Path(folder) / "windows", Path(folder) / "reports"
+        timings: dict[str, list[float]] = {"routes": [], "simulate": [], "windows": []}
         peaks: dict[str, float] = {}
         for _ in range(args.repeat):
             for stage, command in (
@@ -45,6 +46,8 @@ def main() -> None:
                             "--out", str(routes)]),
                 ("simulate", [sys.executable, "-m", "pipeline", "-q", "simulate", "--params", args.params,
                               "--routes", str(routes), "--out", str(simulated)]),
+                ("windows", [sys.executable, "-m", "pipeline", "-q", "windows", "--params", args.params,
+                             "--simulated", str(simulated), "--out", str(windows), "--reports", str(reports)]),
             ):
                 elapsed, peak = run(command)
                 timings[stage].append(elapsed)
@@ -52,12 +55,15 @@ def main() -> None:
         n_routes = sum(len(set(pq.read_table(f, columns=["route_id"]).column(0).to_pylist()))
                        for f in routes.glob("*.parquet"))
         n_plots = sum(pq.read_metadata(f).num_rows for f in simulated.glob("*/plots.parquet"))
+        n_windows = sum(pq.read_metadata(f).num_rows for f in windows.glob("*.parquet"))
     print(f"routes:   {n_routes} routes, best of {args.repeat}: {min(timings['routes']):.1f} s, "
           f"peak memory {peaks['routes']:.0f} MiB")
     print(f"simulate: {n_plots} plots, best of {args.repeat}: {min(timings['simulate']):.1f} s, "
           f"peak memory {peaks['simulate']:.0f} MiB")
-    print(f"total:    {min(timings['routes']) + min(timings['simulate']):.1f} s for {n_routes} routes "
+    print(f"routes + simulate: {min(timings['routes']) + min(timings['simulate']):.1f} s for {n_routes} routes "
           f"(goal: under 60 s)")
+    print(f"windows:  {n_windows} window rows, best of {args.repeat}: {min(timings['windows']):.1f} s, "
+          f"peak memory {peaks['windows']:.0f} MiB (goal: under 30 s and 2 GB)")
 
 
 if __name__ == "__main__":

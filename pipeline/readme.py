@@ -47,11 +47,33 @@ def data_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def windows_table(summary: dict) -> str:
+    lines = ["| material | windows | after balancing | thesis | thesis after balancing |", "|---|---|---|---|---|"]
+    order = ("filter", "predictor", "autoencoder")
+    for name in sorted(summary["materials"], key=lambda n: order.index(n) if n in order else len(order)):
+        counts = summary["materials"][name]
+        lines.append(f"| {name} | {counts['before']:,} | {counts['after']:,} | {counts['thesis_before']:,} | "
+                     f"{counts['thesis_after']:,} |")
+    calibration, segments = summary["autoencoder_calibration"], summary["segments"]
+    lines.append(f"| autoencoder calibration (target / false) | {calibration['target']:,} / {calibration['false']:,}"
+                 " | not balanced | | |")
+    lines.append(f"| hold-out: segments of {segments['total']:,} (plots) | {segments['holdout']:,} "
+                 f"({segments['holdout_plots']:,}) | not balanced | | |")
+    return "\n".join(lines)
+
+
+SECTIONS = (
+    ("data.json", "Simulated data", data_table),
+    ("windows.json", "Training windows", windows_table),
+)
+
+
 def results_section(reports: Path) -> str:
     parts = [START, ""]
-    data = reports / "data.json"
-    if data.is_file():
-        parts += ["### Simulated data (`reports/data.json`)", "", data_table(json.loads(data.read_text())), ""]
+    for name, title, table in SECTIONS:
+        path = reports / name
+        if path.is_file():
+            parts += [f"### {title} (`reports/{name}`)", "", table(json.loads(path.read_text())), ""]
     parts.append(END)
     return "\n".join(parts)
 
