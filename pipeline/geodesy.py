@@ -113,6 +113,13 @@ def true_measurement(ecef: np.ndarray, radar: Radar) -> tuple[np.ndarray, np.nda
     return np.asarray(slant_range), np.mod(np.asarray(azimuth), 360.0), altitude
 
 
+def elevation_deg(ecef: np.ndarray, radar: Radar) -> np.ndarray:
+    """Exact elevation of ECEF points above the radar's local horizontal plane."""
+    _, elevation, _ = pymap3d.ecef2aer(ecef[..., 0], ecef[..., 1], ecef[..., 2], radar.latitude_deg,
+                                       radar.longitude_deg, radar.height_m, ell=WGS84_ELLIPSOID)
+    return np.asarray(elevation)
+
+
 def below_horizon(slant_range_m: np.ndarray, altitude_m: np.ndarray, radar: Radar) -> np.ndarray:
     """True where the line of sight is blocked by the earth (effective radius k*R for refraction).
 

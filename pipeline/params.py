@@ -43,6 +43,7 @@ class Radar:
     false_plots_per_scan: float
     horizon: bool
     effective_earth_radius_factor: float
+    max_elevation_deg: float
 
     @property
     def radar_id(self) -> int:
@@ -166,6 +167,13 @@ def _integer(tree: Mapping[str, Any], key: str, path: str, low: int = 0) -> int:
     return value
 
 
+def _boolean(tree: Mapping[str, Any], key: str, path: str) -> bool:
+    value = _get(tree, key, path)
+    if not isinstance(value, bool):
+        raise ParamError(f"{path}.{key} = {value!r}: must be true or false")
+    return value
+
+
 def _interval(tree: Mapping[str, Any], key: str, path: str, low: float = 0.0) -> tuple[float, float]:
     value = _get(tree, key, path)
     if not isinstance(value, (list, tuple)) or len(value) != 2:
@@ -198,8 +206,9 @@ def _radar(tree: Mapping[str, Any]) -> Radar:
         reference_rcs_m2=_positive(tree, "reference_rcs_m2", p),
         false_alarm_probability=_number(tree, "false_alarm_probability", p, 0.0, 1.0, low_open=True),
         false_plots_per_scan=_number(tree, "false_plots_per_scan", p, 0.0),
-        horizon=bool(_get(tree, "horizon", p)),
+        horizon=_boolean(tree, "horizon", p),
         effective_earth_radius_factor=_positive(tree, "effective_earth_radius_factor", p),
+        max_elevation_deg=_number(tree, "max_elevation_deg", p, 0.0, 90.0, low_open=True),
     )
     if radar.sac > 255 or radar.sic > 255:
         raise ParamError(f"radar.sac/sic = {radar.sac}/{radar.sic}: each must fit in one byte (0-255)")
@@ -306,7 +315,7 @@ def _windows(tree: Mapping[str, Any]) -> Windows:
         balance_bins=_integer(tree, "balance_bins", p, 2),
         balance_high_bins=_integer(tree, "balance_high_bins", p, 1),
         frame=frame,
-        centre_range=bool(_get(tree, "centre_range", p)),
+        centre_range=_boolean(tree, "centre_range", p),
         dt_max_s=_positive(tree, "dt_max_s", p),
         position_max_diff_m=_positive(tree, "position_max_diff_m", p),
         range_scale_m=_positive(tree, "range_scale_m", p),

@@ -9,7 +9,8 @@
   scan (exponential), and the threshold is set by the false-alarm probability, which
   gives Pd = Pfa^(1 / (1 + SNR)). Low mean SNR at long range or nose-on means a target
   fades for several scans. Targets outside [range_min, range_max], above the coverage
-  ceiling or below the (4/3 earth) radar horizon are not detected.
+  ceiling, in the cone of silence above `max_elevation_deg` or below the (4/3 earth)
+  radar horizon are not detected.
 - Measurements: slant range, azimuth from north and altitude with Gaussian errors, then
   quantised to ASTERIX CAT048 resolutions.
 """
@@ -24,7 +25,9 @@ from scipy.interpolate import CubicHermiteSpline
 from pipeline import asterix_units, geodesy
 from pipeline.params import Aircraft, Radar
 
-BEAM_CROSSING_ITERATIONS = 3
+BEAM_CROSSING_ITERATIONS = 8
+BEAM_CROSSING_TOLERANCE_DEG = 1e-5
+AZIMUTH_RATE_STEP_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -55,27 +58,40 @@ def scan_numbers(start_unix_s: float, end_unix_s: float, radar: Radar) -> np.nda
 def beam_crossings(trajectory: CubicHermiteSpline, radar: Radar) -> tuple[np.ndarray, np.ndarray]:
     """Times when the beam sweeps over a moving target, and the scan (north crossing) each follows.
 
-    The beam angle minus the target's unwrapped azimuth grows monotonically (the beam,
-    60 deg/s at 10 RPM, is far faster than any target's azimuth rate), so every multiple
-    of 360 deg it passes is exactly one crossing: no double plot when a target sits on
-    north. Each crossing is located on the 1 s truth and refined by Newton steps on the
-    exact trajectory.
+    The lead of the beam over the target's unwrapped azimuth grows while the beam turns
+    faster than the target moves in azimuth, which holds everywhere except within a few
+    hundred metres of passing overhead. Each multiple of 360 deg of lead is one crossing,
+    so a target on north gets exactly one plot a turn. Crossings are located on the 1 s
+    truth and refined by Newton steps on the exact trajectory (slope: beam rate minus the
+    target's azimuth rate). A crossing that does not converge (the target outruns the
+    beam, overhead) is dropped: it lies in the cone of silence, where nothing is detected.
     """
     knots = trajectory.x
-    origin = knots[0]
+    origin, end = knots[0], knots[-1]
     rate = 360.0 / radar.scan_period_s
     phase = float(beam_azimuth_deg(origin, radar))
     _, azimuth, _ = geodesy.true_measurement(trajectory(knots), radar)
     unwrapped = np.degrees(np.unwrap(np.radians(azimuth)))
     lead = phase + (knots - origin) * rate - unwrapped
-    turns = np.arange(np.ceil(lead[0] / 360.0), np.floor(lead[-1] / 360.0) + 1.0) * 360.0
-    elapsed = np.interp(turns, lead, knots - origin)
-    for _ in range(BEAM_CROSSING_ITERATIONS):
-        _, exact, _ = geodesy.true_measurement(trajectory(origin + elapsed), radar)
+    turns = np.arange(np.ceil(lead.min() / 360.0), np.floor(lead.max() / 360.0) + 1.0) * 360.0
+    elapsed = np.interp(turns, np.maximum.accumulate(lead), knots - origin)
+
+    def residual_and_slope(elapsed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = origin + elapsed
+        _, exact, _ = geodesy.true_measurement(trajectory(np.clip(t, origin, end)), radar)
         guess = np.interp(elapsed, knots - origin, unwrapped)
         target = guess + np.mod(exact - guess + 180.0, 360.0) - 180.0
-        elapsed = np.clip(elapsed - (phase + elapsed * rate - target - turns) / rate, 0.0, knots[-1] - origin)
-    crossing = origin + elapsed
+        _, ahead, _ = geodesy.true_measurement(trajectory(np.clip(t + AZIMUTH_RATE_STEP_S, origin, end)), radar)
+        _, behind, _ = geodesy.true_measurement(trajectory(np.clip(t - AZIMUTH_RATE_STEP_S, origin, end)), radar)
+        azimuth_rate = (np.mod(ahead - behind + 180.0, 360.0) - 180.0) / (2.0 * AZIMUTH_RATE_STEP_S)
+        return phase + elapsed * rate - target - turns, np.maximum(rate - azimuth_rate, 0.05 * rate)
+
+    for _ in range(BEAM_CROSSING_ITERATIONS):
+        residual, slope = residual_and_slope(elapsed)
+        elapsed = np.clip(elapsed - residual / slope, 0.0, end - origin)
+    residual, _ = residual_and_slope(elapsed)
+    converged = np.abs(residual) < BEAM_CROSSING_TOLERANCE_DEG
+    crossing = np.unique(origin + elapsed[converged])
     return crossing, np.floor(crossing / radar.scan_period_s).astype(np.int64)
 
 
@@ -105,8 +121,10 @@ def detect(rng: np.random.Generator, snr: np.ndarray, radar: Radar) -> np.ndarra
     return power > -np.log(radar.false_alarm_probability)
 
 
-def in_coverage(range_m: np.ndarray, altitude_m: np.ndarray, radar: Radar) -> np.ndarray:
-    covered = (range_m >= radar.range_min_m) & (range_m <= radar.range_max_m) & (altitude_m <= radar.altitude_max_m)
+def in_coverage(range_m: np.ndarray, altitude_m: np.ndarray, elevation_deg: np.ndarray, radar: Radar) -> np.ndarray:
+    """Inside the instrumented range, under the ceiling, below the cone of silence and above the horizon."""
+    covered = ((range_m >= radar.range_min_m) & (range_m <= radar.range_max_m) & (altitude_m <= radar.altitude_max_m)
+               & (elevation_deg <= radar.max_elevation_deg))
     if radar.horizon:
         covered &= ~geodesy.below_horizon(range_m, altitude_m, radar)
     return covered

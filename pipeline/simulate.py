@@ -104,7 +104,7 @@ def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
     true_range, true_azimuth, true_altitude = geodesy.true_measurement(true_ecef, radar)
     line_of_sight = true_ecef - geodesy.radar_site_ecef(radar)
     snr = radar_model.mean_snr(true_range, radar_model.mean_rcs(trajectory(crossing, 1), line_of_sight, kind), radar)
-    covered = radar_model.in_coverage(true_range, true_altitude, radar)
+    covered = radar_model.in_coverage(true_range, true_altitude, geodesy.elevation_deg(true_ecef, radar), radar)
     detected = radar_model.detect(rng, snr, radar) & covered
     truth = {
         "scenario_id": np.full(len(scan), route_id, np.int32), "target_id": np.full(len(scan), route_id, np.int32),

@@ -1,0 +1,164 @@
+"""Training with Lightning: a LightningModule around each network and a DataModule of in-memory tensors.
+
+The windows are small (tens of thousands of 5-10 step sequences), so the whole material
+lives in memory as tensors and a batch is one fancy-indexing operation, not 128 calls to
+a Dataset and a collate: with networks this small the per-batch overhead would otherwise
+dominate. Lightning's Trainer takes `accelerator`, `devices` and `strategy` from params,
+so the same stage runs on a GPU or several.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
+
+from pipeline.networks import NetworkConfig, build_network
+
+log = logging.getLogger("pipeline")
+
+VALIDATION_BATCH = 4096
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    epochs: int
+    batch_size: int
+    learning_rate: float
+    validation_fraction: float
+    seed: int
+    early_stopping_patience: int  # epochs without a better validation loss; 0 = off
+    accelerator: str
+    devices: int | str
+    strategy: str
+    threads: int
+    deterministic: bool
+
+
+class TensorBatches(Dataset):
+    """A dataset indexed by a whole batch of indices at once (used with batch_size=None)."""
+
+    def __init__(self, inputs: torch.Tensor, targets: torch.Tensor) -> None:
+        self.inputs, self.targets = inputs, targets
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    def __getitem__(self, indices: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.inputs[indices], self.targets[indices]
+
+
+class WindowDataModule(L.LightningDataModule):
+    """Training and validation windows, split at random (seeded) by `validation_fraction`."""
+
+    def __init__(self, inputs: np.ndarray, targets: np.ndarray, batch_size: int, validation_fraction: float,
+                 seed: int) -> None:
+        super().__init__()
+        inputs_t = torch.as_tensor(inputs, dtype=torch.float32)
+        targets_t = torch.as_tensor(targets, dtype=torch.float32)
+        order = torch.randperm(len(inputs_t), generator=torch.Generator().manual_seed(seed))
+        validation = int(round(validation_fraction * len(order)))
+        self.train_set = TensorBatches(inputs_t[order[validation:]], targets_t[order[validation:]])
+        self.validation_set = TensorBatches(inputs_t[order[:validation]], targets_t[order[:validation]])
+        self.batch_size, self.seed = batch_size, seed
+
+    def train_dataloader(self) -> DataLoader:
+        sampler = RandomSampler(self.train_set, generator=torch.Generator().manual_seed(self.seed))
+        return DataLoader(self.train_set, sampler=BatchSampler(sampler, self.batch_size, drop_last=False),
+                          batch_size=None)
+
+    def val_dataloader(self) -> DataLoader:
+        sampler = BatchSampler(SequentialSampler(self.validation_set), VALIDATION_BATCH, drop_last=False)
+        return DataLoader(self.validation_set, sampler=sampler, batch_size=None)
+
+
+class NetworkModule(L.LightningModule):
+    """One of the thesis's networks, trained on MSE with Adam."""
+
+    def __init__(self, config: dict, learning_rate: float) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.network = build_network(NetworkConfig.from_dict(config))
+        self.learning_rate = learning_rate
+        self.loss = nn.MSELoss()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.network(x)
+
+    def on_train_epoch_start(self) -> None:
+        self._loss_sum = torch.zeros((), device=self.device)
+        self._loss_count = 0
+
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> torch.Tensor:
+        # The epoch mean is accumulated here and logged once per epoch: self.log on every step
+        # costs more than a whole step of these small networks.
+        inputs, targets = batch
+        loss = self.loss(self.network(inputs), targets)
+        self._loss_sum += loss.detach() * len(inputs)
+        self._loss_count += len(inputs)
+        return loss
+
+    def epoch_train_loss(self) -> torch.Tensor:
+        return self._loss_sum / max(self._loss_count, 1)
+
+    def on_train_epoch_end(self) -> None:
+        self.log("train_loss", self.epoch_train_loss(), sync_dist=True)
+
+    def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
+        inputs, targets = batch
+        self.log("val_loss", self.loss(self.network(inputs), targets), on_step=False, on_epoch=True,
+                 batch_size=len(inputs), sync_dist=True)
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.parameters(), lr=self.learning_rate)
+
+
+class EpochLog(L.Callback):
+    """Keeps the per-epoch losses and logs a progress line every few seconds."""
+
+    def __init__(self, label: str, every_s: float = 10.0) -> None:
+        self.label, self.every_s = label, every_s
+        self.train_loss: list[float] = []
+        self.validation_loss: list[float] = []
+        self._last = 0.0
+        self._start = 0.0
+
+    def on_train_start(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        self._start = time.monotonic()
+
+    def on_train_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        # Callbacks run before the module's own epoch-end hook, so ask the module directly.
+        self.train_loss.append(float(module.epoch_train_loss()))
+        self.validation_loss.append(float(trainer.callback_metrics.get("val_loss", float("nan"))))
+        now = time.monotonic()
+        epoch = trainer.current_epoch + 1
+        if now - self._last >= self.every_s or epoch == trainer.max_epochs:
+            self._last = now
+            log.info("train %s: epoch %d/%d, train loss %.3g, validation loss %.3g, %.0f s", self.label, epoch,
+                     trainer.max_epochs, self.train_loss[-1], self.validation_loss[-1], now - self._start)
+
+
+def train(config: NetworkConfig, inputs: np.ndarray, targets: np.ndarray, training: TrainingConfig,
+          logger: L.pytorch.loggers.Logger | bool = False) -> tuple[NetworkModule, EpochLog]:
+    """Train one network from scratch; deterministic for a given seed on the same machine."""
+    torch.set_num_threads(training.threads)
+    L.seed_everything(training.seed, workers=True, verbose=False)
+    data = WindowDataModule(inputs, targets, training.batch_size, training.validation_fraction, training.seed)
+    module = NetworkModule(config.to_dict(), training.learning_rate)
+    history = EpochLog(config.kind)
+    callbacks: list[L.Callback] = [history]
+    if training.early_stopping_patience > 0:
+        callbacks.append(L.pytorch.callbacks.EarlyStopping("val_loss", patience=training.early_stopping_patience))
+    trainer = L.Trainer(max_epochs=training.epochs, accelerator=training.accelerator, devices=training.devices,
+                        strategy=training.strategy, logger=logger, callbacks=callbacks, deterministic=training.deterministic,
+                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                        num_sanity_val_steps=0, limit_val_batches=1.0 if len(data.validation_set) else 0)
+    trainer.fit(module, datamodule=data)
+    module.eval()
+    return module, history

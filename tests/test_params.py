@@ -1,0 +1,72 @@
+"""params.yaml: the defaults load, and a bad value stops with a ParamError naming the key and the value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pipeline.params import STRATEGIES, ParamError, load_params, parse_params
+
+PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
+
+
+def set_key(tree, dotted, value):
+    *parents, key = dotted.split(".")
+    for parent in parents:
+        tree = tree[parent]
+    tree[key] = value
+
+
+def test_default_params_load():
+    """The committed params.yaml is valid and holds the thesis's radar and three independent splits."""
+    params = load_params(PARAMS_YAML)
+    assert params.radar.scan_period_s == pytest.approx(6.0)
+    assert params.radar.range_max_m == 400e3
+    assert [split.name for split in params.routes.splits] == ["train", "test", "calibration"]
+    assert len({split.seed for split in params.routes.splits}) == 3
+    for split in params.routes.splits:
+        assert set(split.counts) == set(STRATEGIES) and all(count > 0 for count in split.counts.values())
+        assert set(split.aircraft_mix) <= set(params.aircraft)
+    assert (params.routes.random_turns.length_min_m, params.routes.random_turns.length_max_m) == (300e3, 500e3)
+
+
+@pytest.mark.parametrize("key, value, fragments", [
+    ("routes.splits.train.constant_jerk", -1, ["routes.splits.train.constant_jerk", "-1"]),
+    ("aircraft.airliner.speed_mps", [300, 200], ["aircraft.airliner.speed_mps", "[300, 200]", "above"]),
+    ("routes.splits.test.aircraft_mix.zeppelin", 0.1, ["routes.splits.test.aircraft_mix.zeppelin", "unknown"]),
+    ("radar.latitude_deg", 95, ["radar.latitude_deg", "95"]),
+    ("routes.splits.calibration.seed", 1001, ["routes.splits", "seed", "1001"]),
+    ("radar.rotation_rpm", 0.0, ["radar.rotation_rpm", "0.0"]),
+    ("radar.range_min_m", 500e3, ["radar.range_min_m", "500000.0"]),
+    ("routes.start_time_utc", "tomorrow", ["routes.start_time_utc", "tomorrow"]),
+    ("aircraft.fighter.altitude_m", [1000.0, 16000.0], ["aircraft.fighter.altitude_m", "16000.0"]),
+])
+def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
+    """An invalid value raises ParamError whose message names the key and the value."""
+    set_key(params_tree, key, value)
+    with pytest.raises(ParamError) as error:
+        parse_params(params_tree)
+    for fragment in fragments:
+        assert fragment in str(error.value)
+
+
+@pytest.mark.parametrize("section, key", [("radar", "sigma_range_m"), ("routes", "sample_interval_s"),
+                                          ("simulate", "seed")])
+def test_missing_key_is_named(params_tree, section, key):
+    """A missing key raises ParamError naming its full path."""
+    del params_tree[section][key]
+    with pytest.raises(ParamError, match=f"{section}.{key}: missing"):
+        parse_params(params_tree)
+
+
+def test_load_params_names_the_file(params_tree, tmp_path):
+    """load_params reports the file as well as the key and value of a bad setting."""
+    params_tree["radar"]["latitude_deg"] = 95
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(params_tree))
+    with pytest.raises(ParamError, match=r"params\.yaml: radar\.latitude_deg = 95"):
+        load_params(path)
+    with pytest.raises(ParamError, match="not found"):
+        load_params(tmp_path / "missing.yaml")
