@@ -114,8 +114,8 @@ def balance(values: np.ndarray, bins: int, high_bins: int, rng: np.random.Genera
     first `bins - high_bins` is kept, and as many are drawn at random from the last
     `high_bins` (all of them if there are fewer).
     """
-    if len(values) == 0:
-        return np.array([], dtype=np.int64)
+    if len(values) == 0 or values.min() == values.max():
+        return np.arange(len(values))  # nothing to balance: one linearity for every window
     edges = np.linspace(values.min(), values.max(), bins + 1)
     which = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, bins - 1)
     high = which >= bins - high_bins
