@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pipeline.io import InputError
 from pipeline.params import ParamError, load_params
+from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
 
 log = logging.getLogger("pipeline")
@@ -34,6 +35,16 @@ def _windows(args: argparse.Namespace) -> None:
     run_windows(load_params(args.params), Path(args.simulated), Path(args.out), Path(args.reports))
 
 
+def _train(args: argparse.Namespace) -> None:
+    from pipeline.train_stage import run_train
+    run_train(load_params(args.params), args.kind, Path(args.windows), Path(args.models), Path(args.reports))
+
+
+def _models_report(args: argparse.Namespace) -> None:
+    from pipeline.train_stage import run_models_report
+    run_models_report(Path(args.reports))
+
+
 def _readme(args: argparse.Namespace) -> int:
     from pipeline.readme import update_readme
     changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
@@ -52,6 +63,10 @@ COMMANDS = {
                     "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports"),
     "windows": (_windows, "Cut the simulated plots into balanced, scaled training windows and a hold-out.",
                 "python -m pipeline windows --simulated data/simulated --out data/windows --reports reports"),
+    "train": (_train, "Train one network (filter, predictor or autoencoder), evaluate it, log an MLflow run.",
+              "python -m pipeline train --kind predictor --windows data/windows --models models --reports reports"),
+    "models-report": (_models_report, "Merge the networks' hold-out metrics into reports/models.json.",
+                      "python -m pipeline models-report --reports reports"),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
                "python -m pipeline readme --check"),
 }
@@ -65,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
         command = commands.add_parser(name, help=summary, description=summary, epilog=f"example:\n  {example}",
                                       formatter_class=argparse.RawDescriptionHelpFormatter)
         command.set_defaults(handler=handler)
-        if name != "readme":
+        if name not in ("readme", "models-report"):
             command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
         if name == "routes":
             command.add_argument("--out", default="data/routes", help="output folder (default: %(default)s)")
@@ -82,6 +97,14 @@ def build_parser() -> argparse.ArgumentParser:
             command.add_argument("--simulated", default="data/simulated",
                                  help="simulated data folder (default: %(default)s)")
             command.add_argument("--out", default="reports", help="reports folder (default: %(default)s)")
+        if name == "train":
+            command.add_argument("--kind", required=True, choices=("filter", "predictor", "autoencoder"),
+                                 help="which network")
+            command.add_argument("--windows", default="data/windows", help="windows folder (default: %(default)s)")
+            command.add_argument("--models", default="models", help="models folder (default: %(default)s)")
+            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
+        if name == "models-report":
+            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
         if name == "readme":
             command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
             command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
@@ -96,6 +119,6 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
     try:
         return args.handler(args) or 0
-    except (ParamError, InputError, RouteGenerationError) as error:
+    except (ParamError, InputError, RouteGenerationError, TrackingError) as error:
         log.error("%s", error)
         return 2

@@ -115,3 +115,19 @@ def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bi
         axis.legend(fontsize=8, loc="upper left")
     figure.tight_layout()
     return _png(figure)
+
+
+def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str) -> bytes:
+    """Training and validation loss per epoch (MSE on scaled windows), log scale."""
+    figure, axis = plt.subplots(figsize=(6.4, 4.0))
+    epochs = np.arange(1, len(train_loss) + 1)
+    axis.plot(epochs, train_loss, label="training")
+    if not np.all(np.isnan(validation_loss)):
+        axis.plot(epochs, validation_loss, label="validation")
+    axis.set_yscale("log")
+    axis.set_xlabel("epoch")
+    axis.set_ylabel("MSE (scaled)")
+    axis.set_title(f"{kind} network")
+    axis.legend()
+    figure.tight_layout()
+    return _png(figure)

@@ -1,8 +1,8 @@
 """The four training materials and the hold-out, as long Parquet tables (one row per window step).
 
 Every material table has `window_id`, `step`, `scenario_id`, `segment_id`, `plot_id` per
-step, the window's `linearity` and centring origin (`origin_t`, `origin_x/y/z`, ECEF) per
-window, and scaled feature columns:
+step, the window's `linearity` and centring origin (`origin_t`, `origin_x/y/z` in ECEF,
+`origin_r`) per window, and scaled feature columns:
 
 - filter:      `in_*` plots [t, x, y, z, r], `out_*` truth at the same times, same scaling
 - predictor:   `state_*` true states [t, dt, x, y, z, r] over 6 steps: inputs are steps
@@ -24,8 +24,13 @@ import pyarrow as pa
 
 from pipeline.params import Windows
 from pipeline.scaling import PLOT_FEATURES, STATE_FEATURES, WindowScaler, plot_scaler, state_scaler
-from pipeline.windows import (TargetPlots, balance, gather, linearity, long_table, origins, state_features,
-                              window_starts)
+from pipeline.windows import TargetPlots, balance, gather, linearity, long_table, state_features, window_starts
+
+HOLDOUT_SCHEMA = pa.schema([pa.field(name, kind, nullable=False) for name, kind in (
+    ("scenario_id", pa.int32()), ("segment_id", pa.int64()), ("plot_id", pa.int64()), ("time_unix_s", pa.float64()),
+    ("x_ecef_m", pa.float64()), ("y_ecef_m", pa.float64()), ("z_ecef_m", pa.float64()), ("range_m", pa.float64()),
+    ("true_x_ecef_m", pa.float64()), ("true_y_ecef_m", pa.float64()), ("true_z_ecef_m", pa.float64()),
+    ("true_range_m", pa.float64()))])
 
 # (before, after balancing) in the thesis, for the report.
 THESIS_COUNTS = {"filter": (83309, 39682), "predictor": (93675, 50730), "autoencoder": (96751, 12464)}
@@ -55,8 +60,7 @@ def _ids(plots: TargetPlots, starts: np.ndarray, length: int) -> dict[str, np.nd
 
 
 def _per_window(origin: np.ndarray, values: np.ndarray) -> dict[str, np.ndarray]:
-    return {"linearity": values, "origin_t": origin[:, 0], "origin_x": origin[:, 1], "origin_y": origin[:, 2],
-            "origin_z": origin[:, 3]}
+    return {"linearity": values, **{f"origin_{name}": origin[:, i] for i, name in enumerate("txyzr")}}
 
 
 def _balanced(plots: TargetPlots, starts: np.ndarray, length: int, cfg: Windows, rng: np.random.Generator
@@ -72,7 +76,7 @@ def filter_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, rng:
     starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
     raw_in = gather(plots.plot_features(), starts, length)
     raw_out = gather(plots.true_features(), starts, length)
-    origin = origins(raw_in, PLOT_FEATURES)
+    origin = scaler.origin(raw_in)
     table = long_table({"in": scaler.transform(raw_in, origin), "out": scaler.transform(raw_out, origin)},
                        _ids(plots, starts, length), _per_window(origin, after))
     return Material(table, before, after)
@@ -83,7 +87,7 @@ def predictor_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, r
     length = cfg.predictor_inputs + 1
     starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
     raw = state_features(plots.true_features(), starts, length)
-    origin = origins(raw, STATE_FEATURES)
+    origin = scaler.origin(raw)
     table = long_table({"state": scaler.transform(raw, origin)}, _ids(plots, starts, length),
                        _per_window(origin, after))
     return Material(table, before, after)
@@ -94,7 +98,7 @@ def autoencoder_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler,
     length = cfg.autoencoder_length
     starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
     raw = gather(plots.plot_features(), starts, length)
-    origin = origins(raw, PLOT_FEATURES)
+    origin = scaler.origin(raw)
     table = long_table({"in": scaler.transform(raw, origin)}, _ids(plots, starts, length),
                        _per_window(origin, after))
     return Material(table, before, after)
@@ -110,7 +114,7 @@ def calibration_material(targets: TargetPlots, all_plots: pa.Table, cfg: Windows
     window, candidate = _calibration_pairs(targets, starts + head - 1, candidates, cfg)
     raw = np.concatenate([gather(targets.plot_features(), starts[window], head),
                           candidates["features"][candidate][:, None, :]], axis=1)
-    origin = origins(raw, PLOT_FEATURES)
+    origin = scaler.origin(raw)
     ids = {name: np.column_stack([gather(getattr(targets, name), starts[window], head), candidates[name][candidate]])
            for name in ("scenario_id", "plot_id")}
     ids["segment_id"] = np.repeat(targets.segment_id[starts[window]][:, None], head + 1, axis=1)
@@ -153,11 +157,11 @@ def _candidate_table(plots: pa.Table) -> dict[str, np.ndarray]:
 
 def holdout_table(plots: TargetPlots) -> pa.Table:
     """The held-out segments' target plots, unscaled, in metres and seconds."""
-    return pa.table({
+    return pa.Table.from_pydict({
         "scenario_id": plots.scenario_id, "segment_id": plots.segment_id, "plot_id": plots.plot_id,
         "time_unix_s": plots.time,
         "x_ecef_m": plots.position[:, 0], "y_ecef_m": plots.position[:, 1], "z_ecef_m": plots.position[:, 2],
         "range_m": plots.range_m,
         "true_x_ecef_m": plots.true_position[:, 0], "true_y_ecef_m": plots.true_position[:, 1],
         "true_z_ecef_m": plots.true_position[:, 2], "true_range_m": plots.true_range_m,
-    })
+    }, schema=HOLDOUT_SCHEMA)

@@ -130,6 +130,33 @@ class Windows:
 
 
 @dataclass(frozen=True)
+class NetworkTraining:
+    hidden: tuple[int, ...]
+    decoder_hidden: tuple[int, ...]
+    output_steps: int
+    epochs: int
+    batch_size: int
+    learning_rate: float
+    validation_fraction: float
+    seed: int
+    early_stopping_patience: int
+
+
+@dataclass(frozen=True)
+class Training:
+    tracking_uri: str
+    experiment: str
+    accelerator: str
+    devices: int | str
+    strategy: str
+    threads: int
+    deterministic: bool
+    kalman_acceleration_std_mps2: float
+    kalman_truth_sigma_m: float
+    networks: Mapping[str, NetworkTraining]
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -137,6 +164,7 @@ class Params:
     simulate_seed: int
     example_routes: int
     windows: Windows
+    training: Training
 
 
 def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
@@ -326,6 +354,63 @@ def _windows(tree: Mapping[str, Any]) -> Windows:
     return windows
 
 
+def _sizes(tree: Mapping[str, Any], key: str, path: str) -> tuple[int, ...]:
+    value = _get(tree, key, path)
+    if (not isinstance(value, list) or not value
+            or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in value)):
+        raise ParamError(f"{path}.{key} = {value!r}: must be a list of positive layer sizes")
+    return tuple(value)
+
+
+def _text(tree: Mapping[str, Any], key: str, path: str) -> str:
+    value = _get(tree, key, path)
+    if not isinstance(value, str) or not value:
+        raise ParamError(f"{path}.{key} = {value!r}: must be a non-empty string")
+    return value
+
+
+def _network_training(kind: str, tree: Mapping[str, Any], windows: Windows) -> NetworkTraining:
+    p = f"training.{kind}"
+    output_steps = {"filter": None, "predictor": windows.predictor_inputs - 1,
+                    "autoencoder": windows.autoencoder_length}[kind]
+    if output_steps is None:
+        output_steps = _integer(tree, "output_steps", p, 1)
+        if output_steps > windows.filter_length:
+            raise ParamError(f"{p}.output_steps = {output_steps}: above windows.filter_length = "
+                             f"{windows.filter_length}")
+    return NetworkTraining(
+        hidden=_sizes(tree, "hidden", p),
+        decoder_hidden=_sizes(tree, "decoder_hidden", p) if kind == "autoencoder" else (),
+        output_steps=output_steps,
+        epochs=_integer(tree, "epochs", p, 1),
+        batch_size=_integer(tree, "batch_size", p, 1),
+        learning_rate=_positive(tree, "learning_rate", p),
+        validation_fraction=_number(tree, "validation_fraction", p, 0.0, 0.9),
+        seed=_integer(tree, "seed", p),
+        early_stopping_patience=_integer(tree, "early_stopping_patience", p),
+    )
+
+
+def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
+    p = "training"
+    devices = _get(tree, "devices", p)
+    if not (devices == "auto" or (isinstance(devices, int) and not isinstance(devices, bool) and devices >= 1)):
+        raise ParamError(f"{p}.devices = {devices!r}: must be a positive integer or 'auto'")
+    return Training(
+        tracking_uri=_text(tree, "tracking_uri", p),
+        experiment=_text(tree, "experiment", p),
+        accelerator=_text(tree, "accelerator", p),
+        devices=devices,
+        strategy=_text(tree, "strategy", p),
+        threads=_integer(tree, "threads", p, 1),
+        deterministic=_boolean(tree, "deterministic", p),
+        kalman_acceleration_std_mps2=_positive(tree, "kalman_acceleration_std_mps2", p),
+        kalman_truth_sigma_m=_positive(tree, "kalman_truth_sigma_m", p),
+        networks={kind: _network_training(kind, _get(tree, kind, p), windows)
+                  for kind in ("filter", "predictor", "autoencoder")},
+    )
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params."""
     radar = _radar(_get(tree, "radar", "params"))
@@ -334,6 +419,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         raise ParamError(f"aircraft = {aircraft_tree!r}: must define at least one aircraft type")
     aircraft = {name: _aircraft(name, aircraft_tree[name]) for name in aircraft_tree}
     simulate = _get(tree, "simulate", "params")
+    windows = _windows(_get(tree, "windows", "params"))
     report = _get(tree, "report", "params")
     return Params(
         radar=radar,
@@ -341,7 +427,8 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         routes=_routes(_get(tree, "routes", "params"), aircraft, radar),
         simulate_seed=_integer(simulate, "seed", "simulate"),
         example_routes=_integer(report, "example_routes", "report", 1),
-        windows=_windows(_get(tree, "windows", "params")),
+        windows=windows,
+        training=_training(_get(tree, "training", "params"), windows),
     )
 
 

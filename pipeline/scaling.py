@@ -5,7 +5,7 @@ A window is a short sequence of samples, features last. Two layouts (thesis 4.2.
 - plots:  [T, x, y, z, R]      (time, position, range from the radar)
 - states: [T, dT, x, y, z, R]  (dT: time to the next known state)
 
-Scaling centres a window on an origin (its first sample: time and position) and divides
+Scaling centres a window on an origin (its first input sample: time and position) and divides
 by the thesis's scale vector, e.g. for plots [dT_max*N_u, X*N_u, Y*N_u, Z*N_u, R_max]. dT
 is never centred. Whether R is centred is the `centre_range` choice (the thesis is
 ambiguous; by default it is not: dividing a raw range by R_max already gives [0, 1]).
@@ -35,7 +35,8 @@ STATE_FEATURES = ("t", "dt", "x", "y", "z", "r")
 
 @dataclass(frozen=True)
 class WindowScaler:
-    """Centre-and-scale for one window layout. `origin` rows are (t0, x0, y0, z0) in ECEF."""
+    """Centre-and-scale for one window layout. `origin` rows are (t0, x0, y0, z0, r0): time, ECEF
+    position and range of the window's first input sample (see `origin`)."""
 
     features: tuple[str, ...]
     scale: tuple[float, ...]
@@ -51,6 +52,10 @@ class WindowScaler:
     @property
     def _position(self) -> list[int]:
         return [self.features.index(axis) for axis in ("x", "y", "z")]
+
+    def origin(self, windows: np.ndarray) -> np.ndarray:
+        """(t0, x0, y0, z0, r0) of each window's first sample: what it is centred on."""
+        return np.asarray(windows)[:, 0, [self.features.index(name) for name in ("t", "x", "y", "z", "r")]]
 
     def _rotations(self, origin: np.ndarray) -> np.ndarray | None:
         """Per-window ECEF -> ENU rotations (N x 3 x 3) at the origin, or None in the ECEF frame."""
@@ -71,11 +76,11 @@ class WindowScaler:
             position = np.einsum("nij,nlj->nli", rotations, position)
         out[..., self._position] = position
         if self.centre_range:
-            out[..., self.features.index("r")] -= windows[:, :1, self.features.index("r")]
+            out[..., self.features.index("r")] -= origin[:, None, 4]
         return out / np.asarray(self.scale)
 
-    def inverse(self, scaled: np.ndarray, origin: np.ndarray, first_range: np.ndarray | None = None) -> np.ndarray:
-        """Network features back to raw windows. `first_range` (N,) is needed only with centre_range."""
+    def inverse(self, scaled: np.ndarray, origin: np.ndarray) -> np.ndarray:
+        """Network features back to raw windows, for the same origins they were scaled with."""
         out = np.asarray(scaled, dtype=float) * np.asarray(self.scale)
         t = self.features.index("t")
         out[..., t] += origin[:, None, 0]
@@ -85,9 +90,7 @@ class WindowScaler:
             position = np.einsum("nji,nlj->nli", rotations, position)
         out[..., self._position] = position + origin[:, None, 1:4]
         if self.centre_range:
-            if first_range is None:
-                raise ValueError("centre_range scaling needs the window's first range to invert")
-            out[..., self.features.index("r")] += first_range[:, None]
+            out[..., self.features.index("r")] += origin[:, None, 4]
         return out
 
     def to_dict(self) -> dict[str, Any]:

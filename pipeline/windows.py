@@ -132,12 +132,6 @@ def state_features(true: np.ndarray, starts: np.ndarray, length: int) -> np.ndar
     return np.concatenate([windows[:, :, :1], dt[..., None], windows[:, :, 1:]], axis=2)
 
 
-def origins(windows: np.ndarray, features: tuple[str, ...]) -> np.ndarray:
-    """(t0, x0, y0, z0) of each window's first sample: the centring origin."""
-    index = [features.index(name) for name in ("t", "x", "y", "z")]
-    return windows[:, 0, index]
-
-
 def long_table(windows: dict[str, np.ndarray], per_step: dict[str, np.ndarray], per_window: dict[str, np.ndarray]
                ) -> pa.Table:
     """One row per window step: window_id, step, per-step ids, per-window values, feature columns.

@@ -65,8 +65,8 @@ def raw_windows(layout, steps):
 
 
 def origin_of(raw, scaler):
-    """(t0, x0, y0, z0) of each window's first sample."""
-    return raw[:, 0, [scaler.features.index(name) for name in ("t", "x", "y", "z")]]
+    """(t0, x0, y0, z0, r0) of each window's first sample."""
+    return scaler.origin(raw)
 
 
 def test_scale_vectors_follow_the_thesis():
@@ -96,8 +96,7 @@ def test_inverse_returns_the_raw_windows_anywhere_on_earth(layout, frame, centre
     raw = raw_windows(layout, 10)
     origin = origin_of(raw, scaler)
     scaled = scaler.transform(raw, origin)
-    first_range = raw[:, 0, scaler.features.index("r")] if centre_range else None
-    np.testing.assert_allclose(scaler.inverse(scaled, origin, first_range), raw, rtol=0.0, atol=1e-6)
+    np.testing.assert_allclose(scaler.inverse(scaled, origin), raw, rtol=0.0, atol=1e-6)
 
 
 @pytest.mark.parametrize("frame", scaling.FRAMES)
@@ -118,13 +117,14 @@ def test_state_dt_is_divided_but_never_centred():
     np.testing.assert_allclose(scaled[:, :, 1], np.r_[[SCAN_S / DT_MAX_S] * 5, 0.0][None].repeat(3, axis=0))
 
 
-def test_centred_range_needs_the_first_range_to_invert():
-    """With centre_range, inverting without the window's first range is an error, not a silent offset."""
+def test_centred_range_is_centred_on_the_first_input_range():
+    """With centre_range, R is relative to the origin's range, so targets share the inputs' centring."""
     scaler = scaling.plot_scaler(DT_MAX_S, MAX_DIFF_M, R_MAX_M, 10, "ecef", True)
     raw = raw_windows("plots", 10)
     origin = origin_of(raw, scaler)
-    with pytest.raises(ValueError, match="first range"):
-        scaler.inverse(scaler.transform(raw, origin), origin)
+    scaled = scaler.transform(raw, origin)
+    np.testing.assert_allclose(scaled[:, 0, 4], 0.0, atol=1e-12)
+    np.testing.assert_allclose(scaled[:, :, 4] * R_MAX_M, raw[:, :, 4] - raw[:, :1, 4], atol=1e-6)
 
 
 def test_default_scale_vectors_are_the_thesis(make_params):

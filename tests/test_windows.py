@@ -256,7 +256,7 @@ def per_step(table: pa.Table, column: str) -> np.ndarray:
 
 def unscaled(table: pa.Table, prefix: str, scaler: WindowScaler) -> np.ndarray:
     """The `prefix_*` windows back in metres and seconds, using each window's stored origin."""
-    origin = np.column_stack([per_step(table, f"origin_{axis}")[:, 0] for axis in "txyz"])
+    origin = np.column_stack([per_step(table, f"origin_{axis}")[:, 0] for axis in "txyzr"])
     return scaler.inverse(windows.window_arrays(table, prefix, scaler.features), origin)
 
 
