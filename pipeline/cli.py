@@ -54,62 +54,66 @@ def _readme(args: argparse.Namespace) -> int:
     return 0
 
 
+FOLDERS = {  # option -> (default, what it is)
+    "routes": ("data/routes", "routes folder"),
+    "simulated": ("data/simulated", "simulated data folder"),
+    "windows": ("data/windows", "windows folder"),
+    "models": ("models", "models folder"),
+    "reports": ("reports", "reports folder"),
+}
+
+# name -> (handler, summary, example, input/output options; "out" is given as ("out", default))
 COMMANDS = {
     "routes": (_routes, "Simulate aircraft routes (truth) for every split.",
-               "python -m pipeline routes --params params.yaml --out data/routes"),
+               "python -m pipeline routes --params params.yaml --out data/routes",
+               ["params", ("out", "data/routes")]),
     "simulate": (_simulate, "Run the rotating radar over the routes: plots, per-scan truth, radar description.",
-                 "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated"),
+                 "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated",
+                 ["params", "routes", ("out", "data/simulated")]),
     "data-report": (_data_report, "Metrics (data.json) and pictures of the simulated data.",
-                    "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports"),
+                    "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports",
+                    ["params", "routes", "simulated", ("out", "reports")]),
     "windows": (_windows, "Cut the simulated plots into balanced, scaled training windows and a hold-out.",
-                "python -m pipeline windows --simulated data/simulated --out data/windows --reports reports"),
+                "python -m pipeline windows --simulated data/simulated --out data/windows --reports reports",
+                ["params", "simulated", ("out", "data/windows"), "reports"]),
     "train": (_train, "Train one network (filter, predictor or autoencoder), evaluate it, log an MLflow run.",
-              "python -m pipeline train --kind predictor --windows data/windows --models models --reports reports"),
+              "python -m pipeline train --kind predictor --windows data/windows --models models --reports reports",
+              ["params", "kind", "windows", "models", "reports"]),
     "models-report": (_models_report, "Merge the networks' hold-out metrics into reports/models.json.",
-                      "python -m pipeline models-report --reports reports"),
+                      "python -m pipeline models-report --reports reports", ["reports"]),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
-               "python -m pipeline readme --check"),
+               "python -m pipeline readme --check", ["readme", "reports", "check"]),
 }
+
+
+def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:
+    if isinstance(option, tuple):
+        command.add_argument("--out", default=option[1], help="output folder (default: %(default)s)")
+    elif option == "params":
+        command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
+    elif option == "kind":
+        command.add_argument("--kind", required=True, choices=("filter", "predictor", "autoencoder"),
+                             help="which network")
+    elif option == "readme":
+        command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
+    elif option == "check":
+        command.add_argument("--check", action="store_true",
+                             help="do not write; exit 1 if the README's tables are out of date")
+    else:
+        default, what = FOLDERS[option]
+        command.add_argument(f"--{option}", default=default, help=f"{what} (default: %(default)s)")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
     parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (handler, summary, example) in COMMANDS.items():
+    for name, (handler, summary, example, options) in COMMANDS.items():
         command = commands.add_parser(name, help=summary, description=summary, epilog=f"example:\n  {example}",
                                       formatter_class=argparse.RawDescriptionHelpFormatter)
         command.set_defaults(handler=handler)
-        if name not in ("readme", "models-report"):
-            command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
-        if name == "routes":
-            command.add_argument("--out", default="data/routes", help="output folder (default: %(default)s)")
-        if name == "windows":
-            command.add_argument("--simulated", default="data/simulated",
-                                 help="simulated data folder (default: %(default)s)")
-            command.add_argument("--out", default="data/windows", help="output folder (default: %(default)s)")
-            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
-        if name in ("simulate", "data-report"):
-            command.add_argument("--routes", default="data/routes", help="routes folder (default: %(default)s)")
-        if name == "simulate":
-            command.add_argument("--out", default="data/simulated", help="output folder (default: %(default)s)")
-        if name == "data-report":
-            command.add_argument("--simulated", default="data/simulated",
-                                 help="simulated data folder (default: %(default)s)")
-            command.add_argument("--out", default="reports", help="reports folder (default: %(default)s)")
-        if name == "train":
-            command.add_argument("--kind", required=True, choices=("filter", "predictor", "autoencoder"),
-                                 help="which network")
-            command.add_argument("--windows", default="data/windows", help="windows folder (default: %(default)s)")
-            command.add_argument("--models", default="models", help="models folder (default: %(default)s)")
-            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
-        if name == "models-report":
-            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
-        if name == "readme":
-            command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
-            command.add_argument("--reports", default="reports", help="reports folder (default: %(default)s)")
-            command.add_argument("--check", action="store_true",
-                                 help="do not write; exit 1 if the README's tables are out of date")
+        for option in options:
+            _add_option(command, option)
     return parser
 
 

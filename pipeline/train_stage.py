@@ -88,7 +88,7 @@ def window_scaler(kind: str, params: Params, scalers_path: Path) -> WindowScaler
     return stored
 
 
-def _training_config(kind: str, params: Params) -> TrainingConfig:
+def training_config(kind: str, params: Params) -> TrainingConfig:
     net, cfg = params.training.networks[kind], params.training
     return TrainingConfig(epochs=net.epochs, batch_size=net.batch_size, learning_rate=net.learning_rate,
                           validation_fraction=net.validation_fraction, seed=net.seed,
@@ -142,7 +142,7 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
     logger.log_hyperparams(_flat_params(kind, params))
     log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), logger.run_id, uri)
 
-    module, history = train(config, inputs, targets, _training_config(kind, params), logger)
+    module, history = train(config, inputs, targets, training_config(kind, params), logger)
     model = LoadedModel(module.network, config, scaler)
     metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
     metrics["epochs_trained"] = len(history.train_loss)
