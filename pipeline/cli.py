@@ -45,6 +45,12 @@ def _models_report(args: argparse.Namespace) -> None:
     run_models_report(Path(args.reports))
 
 
+def _evaluate(args: argparse.Namespace) -> None:
+    from pipeline.evaluate_stage import run_evaluate
+    run_evaluate(load_params(args.params), Path(args.simulated), Path(args.routes), Path(args.models),
+                 Path(args.reports))
+
+
 def _readme(args: argparse.Namespace) -> int:
     from pipeline.readme import update_readme
     changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
@@ -81,6 +87,9 @@ COMMANDS = {
               ["params", "kind", "windows", "models", "reports"]),
     "models-report": (_models_report, "Merge the networks' hold-out metrics into reports/models.json.",
                       "python -m pipeline models-report --reports reports", ["reports"]),
+    "evaluate": (_evaluate, "Run the tracker with every method and window of params over the test scenarios.",
+                 "python -m pipeline evaluate --simulated data/simulated --routes data/routes --models models",
+                 ["params", "simulated", "routes", "models", "reports"]),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
                "python -m pipeline readme --check", ["readme", "reports", "check"]),
 }

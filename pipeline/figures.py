@@ -131,3 +131,42 @@ def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str)
     axis.legend()
     figure.tight_layout()
     return _png(figure)
+
+
+def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str) -> bytes:
+    """One scenario: the true route, target and false plots near it, and the confirmed tracks' states."""
+    radar = params.radar
+
+    def local_km(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        east, north, _ = pymap3d.ecef2enu(ecef[:, 0], ecef[:, 1], ecef[:, 2], radar.latitude_deg,
+                                          radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
+        return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
+
+    times = scenario.features[:, 0]
+    truth_e, truth_n = local_km(scenario.truth(np.linspace(times.min(), times.max(), 2000)))
+    plot_e, plot_n = local_km(scenario.features[:, 1:4])
+    target = np.array([scenario.is_target[int(p)] for p in scenario.plot_ids], dtype=bool)
+    margin = 20.0
+    box = (truth_e.min() - margin, truth_e.max() + margin, truth_n.min() - margin, truth_n.max() + margin)
+    shown = (plot_e > box[0]) & (plot_e < box[1]) & (plot_n > box[2]) & (plot_n < box[3])
+    figure, axis = plt.subplots(figsize=(8, 8))
+    axis.scatter(plot_e[shown & ~target], plot_n[shown & ~target], s=2, color="0.7", label="false plots")
+    axis.scatter(plot_e[target], plot_n[target], s=4, color="black", label="target plots")
+    axis.plot(truth_e, truth_n, color="tab:green", lw=1.0, label="truth")
+    confirmed = (updates["association"] != "start") & (updates["weight"] >= params.tracker.weight_confirmed - 1e-9)
+    states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])
+    for number, track_id in enumerate(np.unique(updates["track_id"][confirmed])):
+        rows = confirmed & (updates["track_id"] == track_id)
+        east, north = local_km(states[rows])
+        axis.plot(east, north, "-", lw=1.6, color=plt.cm.tab10.colors[number % 10],
+                  label="confirmed tracks" if number == 0 else None)
+    axis.set_xlim(box[0], box[1])
+    axis.set_ylim(box[2], box[3])
+    axis.set_aspect("equal")
+    axis.set_xlabel("east of radar (km)")
+    axis.set_ylabel("north of radar (km)")
+    axis.set_title(f"scenario {scenario.scenario_id}, {run_name}: {len(np.unique(updates['track_id'][confirmed]))} "
+                   "confirmed tracks", fontsize=10)
+    axis.legend(fontsize=8, loc="best")
+    figure.tight_layout()
+    return _png(figure)

@@ -157,6 +157,41 @@ class Training:
 
 
 @dataclass(frozen=True)
+class TrackerParams:
+    weight_start: float
+    weight_candidate: float
+    weight_confirmed: float
+    weight_step: float
+    silence_s: float
+    prefilter_m: float
+    young_track_plots: int
+    young_track_plots_ae: int
+    filter_plots: int
+    mia_samples: int
+    mia_ball_radius_m: float
+    mia_k_no_padding: float
+    mia_k_padded_base: float
+    seed: int
+
+
+@dataclass(frozen=True)
+class EvaluationRun:
+    method: str
+    window_m: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.method}_{self.window_m:.0f}"
+
+
+@dataclass(frozen=True)
+class Evaluate:
+    split: str
+    runs: tuple[EvaluationRun, ...]
+    example_scenarios: int
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -165,6 +200,8 @@ class Params:
     example_routes: int
     windows: Windows
     training: Training
+    tracker: TrackerParams
+    evaluate: Evaluate
 
 
 def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
@@ -411,6 +448,56 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
     )
 
 
+ASSOCIATION_METHODS = ("radius", "via", "mia", "ae")
+
+
+def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
+    p = "tracker"
+    tracker = TrackerParams(
+        weight_start=_positive(tree, "weight_start", p),
+        weight_candidate=_positive(tree, "weight_candidate", p),
+        weight_confirmed=_positive(tree, "weight_confirmed", p),
+        weight_step=_positive(tree, "weight_step", p),
+        silence_s=_positive(tree, "silence_s", p),
+        prefilter_m=_positive(tree, "prefilter_m", p),
+        young_track_plots=_integer(tree, "young_track_plots", p, 1),
+        young_track_plots_ae=_integer(tree, "young_track_plots_ae", p, windows.autoencoder_length),
+        filter_plots=_integer(tree, "filter_plots", p, 1),
+        mia_samples=_integer(tree, "mia_samples", p, 2),
+        mia_ball_radius_m=_positive(tree, "mia_ball_radius_m", p),
+        mia_k_no_padding=_positive(tree, "mia_k_no_padding", p),
+        mia_k_padded_base=_positive(tree, "mia_k_padded_base", p),
+        seed=_integer(tree, "seed", p),
+    )
+    if not tracker.weight_start < tracker.weight_candidate < tracker.weight_confirmed:
+        raise ParamError(f"{p}: weights must rise: weight_start {tracker.weight_start} < weight_candidate "
+                         f"{tracker.weight_candidate} < weight_confirmed {tracker.weight_confirmed}")
+    if tracker.filter_plots != windows.filter_length:
+        raise ParamError(f"{p}.filter_plots = {tracker.filter_plots}: the filter network reads "
+                         f"windows.filter_length = {windows.filter_length} plots")
+    return tracker
+
+
+def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
+    p = "evaluate"
+    split = _text(tree, "split", p)
+    if split not in [s.name for s in splits]:
+        raise ParamError(f"{p}.split = {split!r}: no such split in routes.splits")
+    runs_tree = _get(tree, "runs", p)
+    if not isinstance(runs_tree, list) or not runs_tree:
+        raise ParamError(f"{p}.runs = {runs_tree!r}: must list at least one {{method, window_m}}")
+    runs = []
+    for index, run in enumerate(runs_tree):
+        method = _get(run, "method", f"{p}.runs[{index}]")
+        if method not in ASSOCIATION_METHODS:
+            raise ParamError(f"{p}.runs[{index}].method = {method!r}: must be one of {ASSOCIATION_METHODS}")
+        runs.append(EvaluationRun(method, _positive(run, "window_m", f"{p}.runs[{index}]")))
+    names = [run.name for run in runs]
+    if len(set(names)) != len(names):
+        raise ParamError(f"{p}.runs: {names} repeats a method and window")
+    return Evaluate(split=split, runs=tuple(runs), example_scenarios=_integer(tree, "example_scenarios", p))
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params."""
     radar = _radar(_get(tree, "radar", "params"))
@@ -420,15 +507,18 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
     aircraft = {name: _aircraft(name, aircraft_tree[name]) for name in aircraft_tree}
     simulate = _get(tree, "simulate", "params")
     windows = _windows(_get(tree, "windows", "params"))
+    routes = _routes(_get(tree, "routes", "params"), aircraft, radar)
     report = _get(tree, "report", "params")
     return Params(
         radar=radar,
         aircraft=aircraft,
-        routes=_routes(_get(tree, "routes", "params"), aircraft, radar),
+        routes=routes,
         simulate_seed=_integer(simulate, "seed", "simulate"),
         example_routes=_integer(report, "example_routes", "report", 1),
         windows=windows,
         training=_training(_get(tree, "training", "params"), windows),
+        tracker=_tracker(_get(tree, "tracker", "params"), windows),
+        evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
     )
 
 

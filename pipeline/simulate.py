@@ -83,7 +83,7 @@ def radar_description(params: Params) -> pa.Table:
     }], schema=RADAR_SCHEMA)
 
 
-def _trajectory(route: dict[str, np.ndarray]) -> CubicHermiteSpline:
+def trajectory_of(route: dict[str, np.ndarray]) -> CubicHermiteSpline:
     position = np.stack([route["x_ecef_m"], route["y_ecef_m"], route["z_ecef_m"]], axis=1)
     velocity = np.stack([route["vx_ecef_mps"], route["vy_ecef_mps"], route["vz_ecef_mps"]], axis=1)
     return CubicHermiteSpline(route["time_unix_s"], position, velocity)
@@ -96,7 +96,7 @@ def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
     route_id = int(route["route_id"][0])
     kind = params.aircraft[str(route["aircraft_type"][0])]
     rng = np.random.default_rng([params.simulate_seed, split.seed, route_id])
-    trajectory = _trajectory(route)
+    trajectory = trajectory_of(route)
     start, end = float(route["time_unix_s"][0]), float(route["time_unix_s"][-1])
 
     crossing, scan = radar_model.beam_crossings(trajectory, radar)

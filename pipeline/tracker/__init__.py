@@ -1,0 +1,1 @@
+"""The neural tracker: tracks and management, estimators, association gates, the tracking loop."""

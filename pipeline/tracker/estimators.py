@@ -1,0 +1,80 @@
+"""State estimators of the neural tracker: the predictor and filter networks (thesis 4.6).
+
+Every call takes a batch (all candidate tracks of a plot, or all MIA samples) and runs one
+forward pass. Inputs are built from the tracks' histories as the training windows were:
+
+- predictor: the last (up to) 5 states [t, dt, x, y, z, r], dt = time to the next state
+  and, for the last state, to the time being predicted. A track with fewer states is
+  padded by repeating its first state (dt = 0) in front, as the thesis does.
+- filter: the last 10 plots [t, x, y, z, r]; the last row of its output is the new state.
+
+A different estimator (a Kalman filter, say) only has to offer `predict` and `update`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from pipeline.model_eval import output_scaler
+from pipeline.model_store import LoadedModel
+from pipeline.tracker.tracks import Track
+
+
+class NetworkEstimator:
+    """Predictor and filter networks with their scalers."""
+
+    def __init__(self, predictor: LoadedModel, filter_model: LoadedModel) -> None:
+        self.predictor, self.filter = predictor, filter_model
+        self.inputs = predictor.config.input_steps
+        self.filter_plots = filter_model.config.input_steps
+        self._predictor_out = output_scaler(predictor.scaler)
+        self._filter_out = output_scaler(filter_model.scaler)
+
+    def state_windows(self, tracks: list[Track], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predictor input windows (N x 5 x 6, unscaled) and the number of padded states of each."""
+        windows = np.empty((len(tracks), self.inputs, 6))
+        padded = np.empty(len(tracks), dtype=np.int64)
+        for n, (track, time) in enumerate(zip(tracks, times)):
+            states = np.asarray(track.states[-self.inputs:])
+            padded[n] = self.inputs - len(states)
+            window = windows[n]
+            window[:padded[n], 0] = states[0, 0]
+            window[:padded[n], 2:] = states[0, 1:]
+            window[:padded[n], 1] = 0.0
+            window[padded[n]:, 0] = states[:, 0]
+            window[padded[n]:, 2:] = states[:, 1:]
+            window[padded[n]:, 1] = np.diff(np.append(states[:, 0], time))
+        return windows, padded
+
+    @torch.inference_mode()
+    def predict_windows(self, windows: np.ndarray) -> np.ndarray:
+        """Predicted [t, x, y, z, r] at the end of each state window (N x 5)."""
+        scaler = self.predictor.scaler
+        origin = scaler.origin(windows)
+        scaled = torch.as_tensor(scaler.transform(windows, origin), dtype=torch.float32)
+        outputs = self.predictor.network(scaled).numpy().astype(float)
+        return self._predictor_out.inverse(outputs, origin)[:, -1]
+
+    def predict(self, tracks: list[Track], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted [t, x, y, z, r] of each track at its time, and the number of padded states."""
+        windows, padded = self.state_windows(tracks, times)
+        return self.predict_windows(windows), padded
+
+    @torch.inference_mode()
+    def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """New state after associating `plot` (already appended to the track's plots).
+
+        With `filter_plots` plots the filter network denoises the last ones; before that the
+        state is the mean of the prediction and the plot (position and range).
+        """
+        if len(track.plots) < self.filter_plots:
+            state = 0.5 * (predicted + plot)
+            state[0] = plot[0]
+            return state
+        window = np.asarray(track.plots[-self.filter_plots:])[None]
+        origin = self.filter.scaler.origin(window)
+        scaled = torch.as_tensor(self.filter.scaler.transform(window, origin), dtype=torch.float32)
+        output = self._filter_out.inverse(self.filter.network(scaled).numpy().astype(float), origin)[0, -1]
+        output[0] = plot[0]
+        return output
