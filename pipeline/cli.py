@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from datetime import date
 from pathlib import Path
 
 from pipeline.io import InputError
@@ -51,6 +52,19 @@ def _evaluate(args: argparse.Namespace) -> None:
                  Path(args.reports))
 
 
+def _track(args: argparse.Namespace) -> None:
+    from pipeline.track_command import run_track
+    run_track(load_params(args.params), Path(args.plots) if args.plots else None,
+              Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
+              date.fromisoformat(args.date) if args.date else None, args.method, args.window, Path(args.models),
+              Path(args.out))
+
+
+def _asterix_export(args: argparse.Namespace) -> None:
+    from pipeline.track_command import export_asterix
+    export_asterix(Path(args.plots), Path(args.radar), args.scenario, Path(args.out))
+
+
 def _readme(args: argparse.Namespace) -> int:
     from pipeline.readme import update_readme
     changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
@@ -90,6 +104,16 @@ COMMANDS = {
     "evaluate": (_evaluate, "Run the tracker with every method and window of params over the test scenarios.",
                  "python -m pipeline evaluate --simulated data/simulated --routes data/routes --models models",
                  ["params", "simulated", "routes", "models", "reports"]),
+    "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
+              "trained networks; writes one row per track update.",
+              "python -m pipeline track --plots data/simulated/test/plots.parquet "
+              "--radar data/simulated/test/radar.parquet --method via --window 4000 --out tracks.parquet\n"
+              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --out tracks.parquet",
+              ["params", "recording", "models"]),
+    "asterix-export": (_asterix_export, "Write one simulated scenario as an ASTERIX CAT034 + CAT048 recording.",
+                       "python -m pipeline asterix-export --plots data/simulated/test/plots.parquet "
+                       "--radar data/simulated/test/radar.parquet --scenario 0 --out scenario_0.ast",
+                       ["export"]),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
                "python -m pipeline readme --check", ["readme", "reports", "check"]),
 }
@@ -103,6 +127,22 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
     elif option == "kind":
         command.add_argument("--kind", required=True, choices=("filter", "predictor", "autoencoder"),
                              help="which network")
+    elif option == "recording":
+        command.add_argument("--plots", help="plots Parquet (the schema `simulate` writes; truth columns optional)")
+        command.add_argument("--radar", help="radar description Parquet (radar_id, latitude_deg, longitude_deg, "
+                                             "height_m)")
+        command.add_argument("--asterix", action="append", help="ASTERIX CAT048 + CAT034 file (repeatable)")
+        command.add_argument("--date", help="UTC date of the first ASTERIX record, YYYY-MM-DD")
+        command.add_argument("--method", default="via", choices=("radius", "via", "mia", "ae"),
+                             help="association method (default: %(default)s)")
+        command.add_argument("--window", type=float, default=4000.0,
+                             help="association window in metres (default: %(default)s)")
+        command.add_argument("--out", required=True, help="output Parquet, one row per track update")
+    elif option == "export":
+        command.add_argument("--plots", required=True, help="simulated plots Parquet")
+        command.add_argument("--radar", required=True, help="radar description Parquet")
+        command.add_argument("--scenario", type=int, required=True, help="scenario id to export")
+        command.add_argument("--out", required=True, help="output ASTERIX file")
     elif option == "readme":
         command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
     elif option == "check":
