@@ -1,0 +1,50 @@
+"""Tracker speed: plots per second per association method on the default test data.
+
+Runs the tracking loop (no metrics, no I/O) over the test scenarios for each method, on one
+core, and prints plots per second. Needs the trained models (`dvc repro`).
+
+    python benchmarks/bench_tracker.py [--scenarios 10] [--window 4000] [--methods via mia ae radius]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+
+import torch
+
+from pipeline import io, routes, simulate
+from pipeline.evaluate_stage import load_scenarios, load_tracker_models
+from pipeline.params import load_params
+from pipeline.tracker.run import track_plots
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--params", default="params.yaml")
+    parser.add_argument("--scenarios", type=int, default=10, help="test scenarios to track per method")
+    parser.add_argument("--window", type=float, default=4000.0)
+    parser.add_argument("--methods", nargs="+", default=["via", "mia", "ae", "radius"])
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    torch.set_num_threads(1)
+    params = load_params(args.params)
+    split = params.evaluate.split
+    plots = io.read_parquet(Path("data/simulated") / split / "plots.parquet", simulate.PLOT_SCHEMA)
+    route_table = io.read_parquet(Path("data/routes") / f"{split}.parquet", routes.ROUTE_SCHEMA)
+    scenarios = load_scenarios(plots, route_table)[:args.scenarios]
+    models = load_tracker_models(Path("models"), params, "ae" in args.methods)
+    count = sum(len(s.features) for s in scenarios)
+    for method in args.methods:
+        start = time.perf_counter()
+        for scenario in scenarios:
+            track_plots(scenario.features, scenario.plot_ids, method, args.window, models, params.tracker,
+                        seed=[params.tracker.seed, scenario.scenario_id])
+        elapsed = time.perf_counter() - start
+        print(f"{method:7s} {count} plots in {elapsed:.1f} s: {count / elapsed:,.0f} plots/s")
+
+
+if __name__ == "__main__":
+    main()
