@@ -21,7 +21,7 @@ from pipeline.model_store import load_model
 from pipeline.params import EvaluationRun, Params
 from pipeline.stages import progress_logger
 from pipeline.tracker.run import Models, track_plots
-from pipeline.tracker_metrics import METRICS, THESIS, THESIS_PLOTS, RouteCounts, route_counts, summarise
+from pipeline.tracker_metrics import THESIS, THESIS_PLOTS, RouteCounts, markdown_table, route_counts, summarise
 
 log = logging.getLogger("pipeline")
 
@@ -92,29 +92,6 @@ def evaluate_run(run: EvaluationRun, scenarios: list[Scenario], models: Models, 
         report(done, len(scenarios))
     plots = sum(len(s.features) for s in scenarios)
     return summarise(counts), updates_by_scenario, plots / elapsed if elapsed else float("nan")
-
-
-def markdown_table(results: dict[str, dict]) -> str:
-    """Thesis tables 5.1/5.2 layout, with the thesis's row under each of ours."""
-    header = "| method (window) | source | " + " | ".join(METRICS) + " |"
-    lines = [header, "|---|---|" + "---|" * len(METRICS)]
-
-    def cells(values: dict) -> str:
-        out = []
-        for metric in METRICS:
-            value = values.get(metric, float("nan"))
-            form = "{:.0f}" if metric in ("NOFPA", "NOPA") else "{:.2e}" if metric == "ROFA" else \
-                "{:.3f}" if metric == "ROCA" else "{:.2f}" if metric == "NOMT" else "{:.1f}"
-            out.append("n/a" if value is None or (isinstance(value, float) and np.isnan(value)) else form.format(value))
-        return " | ".join(out)
-
-    for name, values in results.items():
-        method, window = name.split("_")
-        label = f"{method.upper()} {window}"
-        lines.append(f"| {label} | ours | {cells(values)} |")
-        if name in THESIS:
-            lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")
-    return "\n".join(lines)
 
 
 def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, reports_dir: Path) -> None:

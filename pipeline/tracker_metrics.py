@@ -88,3 +88,33 @@ def summarise(routes: list[RouteCounts]) -> dict[str, float]:
         "target_plots": target_plots,
         "false_plots": sum(r.false_plots for r in routes),
     }
+
+
+def markdown_table(results: dict[str, dict]) -> str:
+    """Thesis tables 5.1/5.2 layout, with the thesis's row under each of ours."""
+    header = "| method (window) | source | " + " | ".join(METRICS) + " |"
+    lines = [header, "|---|---|" + "---|" * len(METRICS)]
+
+    def cells(values: dict) -> str:
+        out = []
+        for metric in METRICS:
+            value = values.get(metric, float("nan"))
+            form = "{:.0f}" if metric in ("NOFPA", "NOPA") else "{:.2e}" if metric == "ROFA" else \
+                "{:.3f}" if metric == "ROCA" else "{:.2f}" if metric == "NOMT" else "{:.1f}"
+            out.append("n/a" if value is None or (isinstance(value, float) and np.isnan(value)) else form.format(value))
+        return " | ".join(out)
+
+    order = ("radius", "via", "mia", "ae")
+
+    def position(name: str) -> tuple[int, float]:
+        method, window = name.split("_")
+        return (order.index(method) if method in order else len(order), float(window))
+
+    for name in sorted(results, key=position):
+        values = results[name]
+        method, window = name.split("_")
+        label = f"{method.upper()} {window}"
+        lines.append(f"| {label} | ours | {cells(values)} |")
+        if name in THESIS:
+            lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")
+    return "\n".join(lines)
