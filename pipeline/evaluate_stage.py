@@ -20,7 +20,8 @@ from pipeline import experiment_tracking, figures, io, materials, routes, simula
 from pipeline.model_store import load_model
 from pipeline.params import EvaluationRun, Params
 from pipeline.stages import progress_logger
-from pipeline.tracker.run import Models, track_plots
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import track_plots
 from pipeline.tracker_metrics import THESIS, THESIS_PLOTS, RouteCounts, markdown_table, route_counts, summarise
 
 log = logging.getLogger("pipeline")
@@ -50,7 +51,7 @@ def load_tracker_models(models_dir: Path, params: Params, need_autoencoder: bool
             raise io.InputError(f"{path}: built with the scaler {model.scaler}, but params give {expected[layout]}; "
                                 f"retrain it (dvc repro train_{kind})")
         loaded[kind] = model
-    return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"))
+    return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"), params.tracker.inference)
 
 
 def load_scenarios(plots: pa.Table, route_table: pa.Table) -> list[Scenario]:

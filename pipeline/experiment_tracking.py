@@ -42,7 +42,11 @@ def check_tracking_store(uri: str, experiment: str) -> None:
                             f"{str(error).splitlines()[0] if str(error) else ''}") from None
 
 
-def git_commit(repository: Path = Path(".")) -> str:
+CODE_DIRECTORY = Path(__file__).resolve().parent
+
+
+def git_commit(repository: Path = CODE_DIRECTORY) -> str:
+    """The commit of the code that runs (not of the working directory), '-dirty' if changed."""
     result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repository, capture_output=True, text=True)
     if result.returncode != 0:
         return "unknown"

@@ -172,6 +172,7 @@ class TrackerParams:
     mia_k_no_padding: float
     mia_k_padded_base: float
     seed: int
+    inference: str
 
 
 @dataclass(frozen=True)
@@ -468,7 +469,10 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
         mia_k_no_padding=_positive(tree, "mia_k_no_padding", p),
         mia_k_padded_base=_positive(tree, "mia_k_padded_base", p),
         seed=_integer(tree, "seed", p),
+        inference=_text(tree, "inference", p),
     )
+    if tracker.inference not in ("onnx", "torch"):
+        raise ParamError(f"{p}.inference = {tracker.inference!r}: must be 'onnx' or 'torch'")
     if not tracker.weight_start < tracker.weight_candidate < tracker.weight_confirmed:
         raise ParamError(f"{p}: weights must rise: weight_start {tracker.weight_start} < weight_candidate "
                          f"{tracker.weight_candidate} < weight_confirmed {tracker.weight_confirmed}")

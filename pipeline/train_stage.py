@@ -131,6 +131,9 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
 
     material = windows_dir / f"{kind}.parquet"
     inputs, targets = training_pairs(kind, material, params)
+    evaluation_input = windows_dir / ("autoencoder_calibration.parquet" if kind == "autoencoder" else "holdout.parquet")
+    if not evaluation_input.is_file():
+        raise io.InputError(f"{evaluation_input}: file not found (run the windows stage)")
     scaler = window_scaler(kind, params, windows_dir / "scalers.json")
     config = network_config(kind, params)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
@@ -142,9 +145,14 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
     logger.log_hyperparams(_flat_params(kind, params))
     log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), logger.run_id, uri)
 
-    module, history = train(config, inputs, targets, training_config(kind, params), logger)
-    model = LoadedModel(module.network, config, scaler)
-    metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
+    try:
+        module, history = train(config, inputs, targets, training_config(kind, params), logger)
+        model = LoadedModel(module.network, config, scaler)
+        metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
+    except BaseException:
+        # Lightning marks the run finished when fit ends; a later failure must not look like success.
+        logger.experiment.set_terminated(logger.run_id, "FAILED")
+        raise
     metrics["epochs_trained"] = len(history.train_loss)
     metrics["final_train_loss"] = history.train_loss[-1]
     metrics["final_validation_loss"] = history.validation_loss[-1]

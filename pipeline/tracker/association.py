@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
+from pipeline.inference import BatchNetwork
 from pipeline.model_store import LoadedModel
 from pipeline.params import TrackerParams
 from pipeline.tracker.estimators import NetworkEstimator
@@ -83,17 +83,16 @@ class MonteCarloGate:
 class AutoencoderGate:
     """AE: accept a plot if the autoencoder reconstructs the track's last plots plus it well enough."""
 
-    def __init__(self, autoencoder: LoadedModel) -> None:
+    def __init__(self, autoencoder: LoadedModel, runnable: BatchNetwork) -> None:
         if "threshold" not in autoencoder.extras:
             raise ValueError("the autoencoder model has no calibrated threshold; retrain it with train_autoencoder")
-        self.model, self.threshold = autoencoder, float(autoencoder.extras["threshold"])
+        self.model, self.run, self.threshold = autoencoder, runnable, float(autoencoder.extras["threshold"])
         self.history = autoencoder.config.input_steps - 1
 
-    @torch.inference_mode()
     def __call__(self, tracks: list[Track], plot: np.ndarray) -> Scores:
         windows = np.stack([np.vstack([*track.plots[-self.history:], plot]) for track in tracks])
         origin = self.model.scaler.origin(windows)
         scaled = self.model.scaler.transform(windows, origin)
-        reconstructed = self.model.network(torch.as_tensor(scaled, dtype=torch.float32)).numpy()
+        reconstructed = self.run(scaled)
         error = np.abs(reconstructed - scaled).sum(axis=(1, 2))
         return Scores(np.where(error <= self.threshold, error / self.threshold, np.inf), None)

@@ -14,22 +14,22 @@ A different estimator (a Kalman filter, say) only has to offer `predict` and `up
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from pipeline.model_eval import output_scaler
-from pipeline.model_store import LoadedModel
+from pipeline.tracker.models import Models
 from pipeline.tracker.tracks import Track
 
 
 class NetworkEstimator:
     """Predictor and filter networks with their scalers."""
 
-    def __init__(self, predictor: LoadedModel, filter_model: LoadedModel) -> None:
-        self.predictor, self.filter = predictor, filter_model
-        self.inputs = predictor.config.input_steps
-        self.filter_plots = filter_model.config.input_steps
-        self._predictor_out = output_scaler(predictor.scaler)
-        self._filter_out = output_scaler(filter_model.scaler)
+    def __init__(self, models: Models) -> None:
+        self.predictor, self.filter = models.predictor, models.filter
+        self._run_predictor, self._run_filter = models.runnable["predictor"], models.runnable["filter"]
+        self.inputs = self.predictor.config.input_steps
+        self.filter_plots = self.filter.config.input_steps
+        self._predictor_out = output_scaler(self.predictor.scaler)
+        self._filter_out = output_scaler(self.filter.scaler)
 
     def state_windows(self, tracks: list[Track], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predictor input windows (N x 5 x 6, unscaled) and the number of padded states of each."""
@@ -47,13 +47,11 @@ class NetworkEstimator:
             window[padded[n]:, 1] = np.diff(np.append(states[:, 0], time))
         return windows, padded
 
-    @torch.inference_mode()
     def predict_windows(self, windows: np.ndarray) -> np.ndarray:
         """Predicted [t, x, y, z, r] at the end of each state window (N x 5)."""
         scaler = self.predictor.scaler
         origin = scaler.origin(windows)
-        scaled = torch.as_tensor(scaler.transform(windows, origin), dtype=torch.float32)
-        outputs = self.predictor.network(scaled).numpy().astype(float)
+        outputs = self._run_predictor(scaler.transform(windows, origin)).astype(float)
         return self._predictor_out.inverse(outputs, origin)[:, -1]
 
     def predict(self, tracks: list[Track], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +59,6 @@ class NetworkEstimator:
         windows, padded = self.state_windows(tracks, times)
         return self.predict_windows(windows), padded
 
-    @torch.inference_mode()
     def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray) -> np.ndarray:
         """New state after associating `plot` (already appended to the track's plots).
 
@@ -74,7 +71,7 @@ class NetworkEstimator:
             return state
         window = np.asarray(track.plots[-self.filter_plots:])[None]
         origin = self.filter.scaler.origin(window)
-        scaled = torch.as_tensor(self.filter.scaler.transform(window, origin), dtype=torch.float32)
-        output = self._filter_out.inverse(self.filter.network(scaled).numpy().astype(float), origin)[0, -1]
+        outputs = self._run_filter(self.filter.scaler.transform(window, origin)).astype(float)
+        output = self._filter_out.inverse(outputs, origin)[0, -1]
         output[0] = plot[0]
         return output

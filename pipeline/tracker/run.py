@@ -11,28 +11,20 @@ for a radar anywhere on Earth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import torch
 
-from pipeline.model_store import LoadedModel
 from pipeline.params import TrackerParams
 from pipeline.tracker.association import (AutoencoderGate, MonteCarloGate, PredictionGate, Scores,
                                            radius_scores)
 from pipeline.tracker.estimators import NetworkEstimator
+from pipeline.tracker.models import Models
 from pipeline.tracker.tracks import LiveTracks, Track
 
 UPDATE_COLUMNS = ("track_id", "time_unix_s", "plot_id", "x_ecef_m", "y_ecef_m", "z_ecef_m", "range_m", "weight",
                   "association", "association_error")
-
-
-@dataclass(frozen=True)
-class Models:
-    predictor: LoadedModel
-    filter: LoadedModel
-    autoencoder: LoadedModel | None = None
 
 
 def make_gate(method: str, window_m: float, estimator: NetworkEstimator, models: Models, params: TrackerParams,
@@ -47,7 +39,7 @@ def make_gate(method: str, window_m: float, estimator: NetworkEstimator, models:
     if method == "ae":
         if models.autoencoder is None:
             raise ValueError("the ae method needs the autoencoder model")
-        return AutoencoderGate(models.autoencoder), params.young_track_plots_ae
+        return AutoencoderGate(models.autoencoder, models.runnable["autoencoder"]), params.young_track_plots_ae
     raise ValueError(f"association method {method!r}: must be radius, via, mia or ae")
 
 
@@ -59,7 +51,7 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
     Returns one row per track update (a track's start counts as its first update).
     """
     torch.set_num_threads(1)  # batches of a few windows: threads only add contention
-    estimator = NetworkEstimator(models.predictor, models.filter)
+    estimator = NetworkEstimator(models)
     gate, mature_from = make_gate(method, window_m, estimator, models, params,
                                   params.seed if seed is None else seed)
     live = LiveTracks()
