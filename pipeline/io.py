@@ -44,9 +44,20 @@ def write_parquet(table: pa.Table, destination: str | Path) -> None:
         pq.write_table(table, temporary, compression="zstd", write_statistics=True)
 
 
+def _finite(data: Any) -> Any:
+    """NaN and infinities become null: JSON has no NaN, and DVC and browsers reject it."""
+    if isinstance(data, float) and not np.isfinite(data):
+        return None
+    if isinstance(data, dict):
+        return {key: _finite(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_finite(value) for value in data]
+    return data
+
+
 def write_json(data: Any, destination: str | Path) -> None:
     with atomic_path(destination) as temporary:
-        temporary.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+        temporary.write_text(json.dumps(_finite(data), indent=2, sort_keys=True, allow_nan=False) + "\n")
 
 
 def write_text(text: str, destination: str | Path) -> None:

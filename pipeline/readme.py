@@ -63,38 +63,43 @@ def windows_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _ratio(numerator: float | None, denominator: float | None) -> float | None:
+    return None if numerator is None or not denominator else numerator / denominator
+
+
 def models_table(summary: dict) -> str:
     thesis = summary.get("thesis", {})
     f, p, a = summary["filter"], summary["predictor"], summary["autoencoder"]
 
-    def row(label: str, ours: float, reference: str = "") -> str:
-        return f"| {label} | {ours:.1f} | {reference} |"
+    def row(label: str, ours: float | None, reference: object = "", form: str = "{:.1f}") -> str:
+        return f"| {label} | {_maybe(ours, form)} | {reference} |"
 
-    lines = ["| hold-out metric (metres unless stated) | ours | thesis |", "|---|---|---|",
-             row("filter: raw plot error (last plot of a 10-plot window)", f["raw_plot_error_m"],
-                 f"{thesis.get('raw_plot_error_m', '')}"),
-             row("filter: network output error", f["filter_error_m"], f"{thesis.get('filter_error_m', '')}"),
-             row("filter: constant-velocity Kalman filter (untuned)", f["kalman_cv_error_m"]),
-             row("filter: range error of the network", f["filter_range_error_m"],
-                 f"{thesis.get('filter_range_error_m', '')}"),
-             f"| filter: network / raw plot error (goal at most 0.6) | {f['filter_error_m'] / f['raw_plot_error_m']:.2f}"
-             " | 1.03 |",
-             row("predictor: linear extrapolation error", p["linear_extrapolation_error_m"],
-                 f"{thesis.get('linear_extrapolation_error_m', '')}"),
-             row("predictor: network prediction error", p["predictor_error_m"],
-                 f"{thesis.get('predictor_error_m', '')}"),
-             row("predictor: constant-velocity Kalman prediction (untuned)", p["kalman_cv_prediction_error_m"]),
-             row("predictor: range error of the network", p["predictor_range_error_m"],
-                 f"{thesis.get('predictor_range_error_m', '')}"),
-             f"| predictor: network / linear extrapolation (goal at most 0.3) | "
-             f"{p['predictor_error_m'] / p['linear_extrapolation_error_m']:.2f} | 0.38 |",
-             f"| autoencoder: reconstruction error, target / false windows (scaled) | "
-             f"{a['reconstruction_error_target']:.3f} / {a['reconstruction_error_false']:.3f} | |",
-             f"| autoencoder: threshold accepting every target window; false windows it rejects | "
-             f"{a['threshold']:.3f}; {100 * a['false_windows_rejected']:.1f} % | |",
-             f"| epochs trained (filter / predictor / autoencoder) | {f['epochs_trained']} / {p['epochs_trained']} / "
-             f"{a['epochs_trained']} | 500 / 500 / 400 |"]
-    return "\n".join(lines)
+    rejected = a["false_windows_rejected"]
+    return "\n".join([
+        "| hold-out metric (metres unless stated) | ours | thesis |", "|---|---|---|",
+        row("filter: raw plot error (last plot of a 10-plot window)", f["raw_plot_error_m"],
+            thesis.get("raw_plot_error_m", "")),
+        row("filter: network output error", f["filter_error_m"], thesis.get("filter_error_m", "")),
+        row("filter: constant-velocity Kalman filter (untuned)", f["kalman_cv_error_m"]),
+        row("filter: range error of the network", f["filter_range_error_m"], thesis.get("filter_range_error_m", "")),
+        row("filter: network / raw plot error (goal at most 0.6)",
+            _ratio(f["filter_error_m"], f["raw_plot_error_m"]), "1.03", "{:.2f}"),
+        row("predictor: linear extrapolation error", p["linear_extrapolation_error_m"],
+            thesis.get("linear_extrapolation_error_m", "")),
+        row("predictor: network prediction error", p["predictor_error_m"], thesis.get("predictor_error_m", "")),
+        row("predictor: constant-velocity Kalman prediction (untuned)", p["kalman_cv_prediction_error_m"]),
+        row("predictor: range error of the network", p["predictor_range_error_m"],
+            thesis.get("predictor_range_error_m", "")),
+        row("predictor: network / linear extrapolation (goal at most 0.3)",
+            _ratio(p["predictor_error_m"], p["linear_extrapolation_error_m"]), "0.38", "{:.2f}"),
+        f"| autoencoder: reconstruction error, target / false windows (scaled) | "
+        f"{_maybe(a['reconstruction_error_target'], '{:.3f}')} / {_maybe(a['reconstruction_error_false'], '{:.3f}')}"
+        " | |",
+        f"| autoencoder: threshold accepting every target window; false windows it rejects | "
+        f"{_maybe(a['threshold'], '{:.3f}')}; {_maybe(None if rejected is None else 100 * rejected, '{:.1f}')} % | |",
+        f"| epochs trained (filter / predictor / autoencoder) | {f['epochs_trained']} / {p['epochs_trained']} / "
+        f"{a['epochs_trained']} | 500 / 500 / 400 |",
+    ])
 
 
 def tracker_table(summary: dict) -> str:

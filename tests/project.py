@@ -20,12 +20,18 @@ def default_params_tree() -> dict[str, Any]:
 
 
 def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
-    """The default params with a handful of routes per split, for runs of a few seconds."""
+    """The default params with a handful of routes per split and two training epochs: the whole
+    pipeline in about a minute."""
     tree = copy.deepcopy(default_params_tree())
     for split in tree["routes"]["splits"].values():
         split["constant_jerk"] = routes_per_strategy
         split["random_turns"] = routes_per_strategy
     tree["report"]["example_routes"] = 1
+    tree["windows"]["holdout_fraction"] = 0.25  # a handful of segments: 5 % would hold out none
+    for network in ("filter", "predictor", "autoencoder"):
+        tree["training"][network]["epochs"] = 2
+    tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0}]
+    tree["evaluate"]["example_scenarios"] = 1
     return tree
 
 
