@@ -98,16 +98,41 @@ def datablocks(data: bytes, path: Path) -> list[tuple[int, bytes]]:
     return blocks
 
 
-def decode(path: Path, first_date: date) -> tuple[pa.Table, pa.Table]:
+def decode(paths: Path | str | list[Path], first_date: date) -> tuple[pa.Table, pa.Table]:
     """Plots (radar_id, time, range, azimuth, flight level, altitude) and the radars seen in north
-    markers, from one recording. Errors name the file, the datablock and what is wrong."""
-    base, cat048, cat034 = _codec()
-    data = Path(path).read_bytes() if Path(path).is_file() else None
-    if data is None:
-        raise InputError(f"{path}: file not found")
+    markers, from one recording, possibly split over several files given in time order. Errors
+    name the file, the datablock and what is wrong."""
+    paths = [Path(p) for p in paths] if isinstance(paths, list) else [Path(paths)]
     plots: dict[str, list] = {"radar_id": [], "time_of_day_s": [], "range_m": [], "azimuth_deg": [],
                               "flight_level": []}
     radars: dict[int, dict] = {}
+    for path in paths:
+        _decode_file(path, plots, radars)
+    if not radars:
+        raise InputError(f"{', '.join(map(str, paths))}: no CAT034 north marker with the radar position (I034/120)")
+    tod = np.asarray(plots.pop("time_of_day_s"), dtype=float)
+    midnight = datetime(first_date.year, first_date.month, first_date.day, tzinfo=timezone.utc).timestamp()
+    wraps = np.concatenate([[0], np.cumsum(np.diff(tod) < -asterix_units.SECONDS_PER_DAY / 2)])
+    flight_level = np.asarray(plots.pop("flight_level"), dtype=float)
+    table = pa.table({
+        "plot_id": np.arange(len(tod), dtype=np.int64),
+        "radar_id": np.asarray(plots["radar_id"], dtype=np.int32),
+        "time_of_day_s": tod,
+        "time_unix_s": midnight + tod + wraps * asterix_units.SECONDS_PER_DAY,
+        "range_m": np.asarray(plots["range_m"], dtype=float),
+        "azimuth_deg": np.asarray(plots["azimuth_deg"], dtype=float),
+        "flight_level": flight_level,
+        "altitude_m": asterix_units.flight_level_to_altitude(flight_level),
+    })
+    return table, pa.Table.from_pylist(sorted(radars.values(), key=lambda r: r["radar_id"]))
+
+
+def _decode_file(path: Path, plots: dict[str, list], radars: dict[int, dict]) -> None:
+    """Append one file's CAT048 plots to `plots` and its CAT034 radars to `radars`."""
+    base, cat048, cat034 = _codec()
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    data = path.read_bytes()
     for number, (offset, chunk) in enumerate(datablocks(data, path)):
         parsed = base.RawDatablock.parse(base.Bits.from_bytes(chunk))
         if isinstance(parsed, ValueError) or len(parsed) != 1:
@@ -141,20 +166,3 @@ def decode(path: Path, first_date: date) -> tuple[pa.Table, pa.Table]:
             except (KeyError, AttributeError) as error:
                 raise InputError(f"{path}: datablock {number} (CAT{category:03d}) has a record without item "
                                  f"{error}") from None
-    if not radars:
-        raise InputError(f"{path}: no CAT034 north marker with the radar position (I034/120)")
-    tod = np.asarray(plots.pop("time_of_day_s"), dtype=float)
-    midnight = datetime(first_date.year, first_date.month, first_date.day, tzinfo=timezone.utc).timestamp()
-    wraps = np.concatenate([[0], np.cumsum(np.diff(tod) < -asterix_units.SECONDS_PER_DAY / 2)])
-    flight_level = np.asarray(plots.pop("flight_level"), dtype=float)
-    table = pa.table({
-        "plot_id": np.arange(len(tod), dtype=np.int64),
-        "radar_id": np.asarray(plots["radar_id"], dtype=np.int32),
-        "time_of_day_s": tod,
-        "time_unix_s": midnight + tod + wraps * asterix_units.SECONDS_PER_DAY,
-        "range_m": np.asarray(plots["range_m"], dtype=float),
-        "azimuth_deg": np.asarray(plots["azimuth_deg"], dtype=float),
-        "flight_level": flight_level,
-        "altitude_m": asterix_units.flight_level_to_altitude(flight_level),
-    })
-    return table, pa.Table.from_pylist(sorted(radars.values(), key=lambda r: r["radar_id"]))

@@ -72,17 +72,11 @@ def read_parquet_recording(plots_path: Path, radar_path: Path) -> tuple[pa.Table
 
 
 def read_asterix_recording(paths: list[Path], first_date: date) -> tuple[pa.Table, pa.Table]:
-    plots, radars = [], []
-    for path in paths:
-        decoded_plots, decoded_radars = asterix_io.decode(path, first_date)
-        plots.append(decoded_plots)
-        radars.append(decoded_radars)
-    table = pa.concat_tables(plots)
-    table = table.set_column(0, "plot_id", pa.array(np.arange(table.num_rows, dtype=np.int64)))
-    radar_table = pa.concat_tables(radars)
-    _, first = np.unique(radar_table.column("radar_id").to_numpy(), return_index=True)
-    return (table.append_column("scenario_id", pa.nulls(table.num_rows, pa.int32())).select(PLOT_INPUT_SCHEMA.names)
-            .cast(PLOT_INPUT_SCHEMA), radar_table.take(first).select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA))
+    """Plots and radars of a recording given as ASTERIX files in time order."""
+    plots, radars = asterix_io.decode(paths, first_date)
+    plots = plots.append_column("scenario_id", pa.nulls(plots.num_rows, pa.int32()))
+    return plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA), \
+        radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA)
 
 
 def track_recording(plots: pa.Table, radars: pa.Table, method: str, window_m: float, params: Params,
@@ -119,8 +113,9 @@ def _track_group(plots: pa.Table, radar: object, radar_id: int, scenario_id: int
     ecef = geodesy.plot_to_ecef(range_m, plots.column("azimuth_deg").to_numpy()[order],
                                 plots.column("altitude_m").to_numpy()[order], radar)
     features = np.column_stack([times[order], ecef, range_m])
+    seed = [params.tracker.seed, scenario_id] if scenario_id >= 0 else [params.tracker.seed]
     updates = track_plots(features, plots.column("plot_id").to_numpy()[order], method, window_m, models,
-                          params.tracker, seed=[params.tracker.seed, scenario_id])
+                          params.tracker, seed=seed)
     states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])
     lat, lon, alt = geodesy.ecef_to_geodetic(states)
     count = len(updates["track_id"])
