@@ -14,6 +14,7 @@ track's history is a short Python list, touched only when the track is a candida
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,9 +38,11 @@ class LiveTracks:
     """The tracks alive now, in fixed slots with array views for vectorised management and gating.
 
     Most plots are clutter that starts a track which dies one silence period later, so slots
-    are reused rather than arrays grown and shrunk, and management is skipped until the
-    earliest time any track can be lowered (`next_due`). A free slot's position is
-    infinite, so it is never within the pre-filter distance.
+    are reused rather than arrays grown and shrunk, and the times at which tracks fall due
+    for lowering sit in a heap: management costs nothing until a track is due. A heap entry
+    carries the slot's generation, which changes whenever the slot's weight changes or the
+    slot is reused, so stale entries are skipped. A free slot's position is infinite, so it
+    is never within the pre-filter distance.
     """
 
     def __init__(self, capacity: int = 64) -> None:
@@ -50,9 +53,10 @@ class LiveTracks:
         self.last_change = np.full(capacity, np.inf)
         self.plot_count = np.zeros(capacity, dtype=np.int64)
         self.alive = np.zeros(capacity, dtype=bool)
+        self._generation = [0] * capacity
+        self._due: list[tuple[float, int, int]] = []  # (time the slot falls due, slot, generation)
         self._free = list(range(capacity - 1, -1, -1))
         self._next_id = 0
-        self.next_due = np.inf
 
     def __len__(self) -> int:
         return len(self.tracks) - len(self._free)
@@ -66,6 +70,7 @@ class LiveTracks:
         self.last_change = np.concatenate([self.last_change, np.full(capacity, np.inf)])
         self.plot_count = np.concatenate([self.plot_count, np.zeros(capacity, dtype=np.int64)])
         self.alive = np.concatenate([self.alive, np.zeros(capacity, dtype=bool)])
+        self._generation.extend([0] * capacity)
         self._free = list(range(2 * capacity - 1, capacity - 1, -1))
 
     def start(self, plot: np.ndarray, plot_id: int, weight: float, silence_s: float) -> int:
@@ -81,8 +86,12 @@ class LiveTracks:
         self.last_change[slot] = plot[0]
         self.plot_count[slot] = 1
         self.alive[slot] = True
-        self.next_due = min(self.next_due, plot[0] + silence_s)
+        self._schedule(slot, plot[0] + silence_s)
         return slot
+
+    def _schedule(self, slot: int, due: float) -> None:
+        self._generation[slot] += 1
+        heapq.heappush(self._due, (due, slot, self._generation[slot]))
 
     def associate(self, slot: int, plot: np.ndarray, plot_id: int, state: np.ndarray, params: TrackerParams) -> None:
         """Add a plot and the updated state to a track, raising its weight."""
@@ -95,37 +104,35 @@ class LiveTracks:
         self.weight[slot] = min(self.weight[slot] + params.weight_step, params.weight_confirmed)
         self.last_change[slot] = plot[0]
         self.plot_count[slot] += 1
+        self._schedule(slot, plot[0] + params.silence_s)
 
     def manage(self, now: float, params: TrackerParams) -> list[Track]:
         """Lower the weight of silent tracks and delete those lowered at or below the candidate
         weight (see the module docstring). Returns the deleted tracks."""
-        if now < self.next_due:
-            return []
-        due = self.alive & (now - self.last_change >= params.silence_s)
-        delete = np.zeros(len(self.tracks), dtype=bool)
-        while due.any():
-            lowered_from = self.weight[due]
-            dies = (np.abs(lowered_from - params.weight_candidate) < EPSILON) | (
-                lowered_from <= params.weight_start + EPSILON)
-            delete[np.flatnonzero(due)[dies]] = True
-            self.weight[due] -= params.weight_step
-            self.last_change[due] += params.silence_s
-            due = self.alive & ~delete & (now - self.last_change >= params.silence_s)
-        removed = self._remove(delete) if delete.any() else []
-        self.next_due = float(self.last_change[self.alive].min()) + params.silence_s if self.alive.any() else np.inf
+        removed = []
+        while self._due and self._due[0][0] <= now:
+            due, slot, generation = heapq.heappop(self._due)
+            if generation != self._generation[slot]:
+                continue
+            lowered_from = self.weight[slot]
+            if abs(lowered_from - params.weight_candidate) < EPSILON or lowered_from <= params.weight_start + EPSILON:
+                removed.append(self._remove(slot))
+                continue
+            self.weight[slot] = lowered_from - params.weight_step
+            self.last_change[slot] = due
+            self._schedule(slot, due + params.silence_s)
         return removed
 
-    def _remove(self, mask: np.ndarray) -> list[Track]:
-        slots = np.flatnonzero(mask)
-        removed = [self.tracks[slot] for slot in slots]
-        for slot in slots:
-            self.tracks[slot] = None
-        self._free.extend(slots.tolist())
-        self.alive[slots] = False
-        self.last_state[slots] = np.inf
-        self.last_plot[slots] = np.inf
-        self.last_change[slots] = np.inf
-        return removed
+    def _remove(self, slot: int) -> Track:
+        track = self.tracks[slot]
+        self.tracks[slot] = None
+        self._free.append(slot)
+        self._generation[slot] += 1
+        self.alive[slot] = False
+        self.last_state[slot] = np.inf
+        self.last_plot[slot] = np.inf
+        self.last_change[slot] = np.inf
+        return track
 
 
 def status(weight: float, params: TrackerParams) -> str:
