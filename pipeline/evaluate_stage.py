@@ -111,15 +111,14 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
         results[run.name], updates, speed[run.name] = evaluate_run(run, scenarios, models, params)
         log.info("evaluate %s: %s, %.0f plots/s", run.name,
                  ", ".join(f"{k} {v:.4g}" for k, v in results[run.name].items()), speed[run.name])
-        examples.setdefault("run", run.name)
-        if examples["run"] == run.name:
-            examples["updates"] = updates
+        if run.name == params.evaluate.example_run:
+            examples = updates
     first = results[params.evaluate.runs[0].name]
     metrics = {"runs": results, "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
     table = markdown_table(results)
-    pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples["updates"][scenario.scenario_id],
-                                                              params, examples["run"])
+    pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples[scenario.scenario_id], params,
+                                                              params.evaluate.example_run)
                 for scenario in scenarios[:params.evaluate.example_scenarios]}
 
     io.write_json(metrics, reports_dir / "tracker_metrics.json")

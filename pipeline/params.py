@@ -190,6 +190,7 @@ class Evaluate:
     split: str
     runs: tuple[EvaluationRun, ...]
     example_scenarios: int
+    example_run: str
 
 
 @dataclass(frozen=True)
@@ -499,7 +500,11 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
     names = [run.name for run in runs]
     if len(set(names)) != len(names):
         raise ParamError(f"{p}.runs: {names} repeats a method and window")
-    return Evaluate(split=split, runs=tuple(runs), example_scenarios=_integer(tree, "example_scenarios", p))
+    example_run = _text(tree, "example_run", p)
+    if example_run not in names:
+        raise ParamError(f"{p}.example_run = {example_run!r}: not one of the runs {names}")
+    return Evaluate(split=split, runs=tuple(runs), example_scenarios=_integer(tree, "example_scenarios", p),
+                    example_run=example_run)
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:

@@ -32,6 +32,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
         tree["training"][network]["epochs"] = 2
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0}]
     tree["evaluate"]["example_scenarios"] = 1
+    tree["evaluate"]["example_run"] = "via_4000"
     return tree
 
 
