@@ -19,6 +19,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 
+def schema(*columns: tuple) -> pa.Schema:
+    """An Arrow schema from (name, type) pairs: columns are required (non-null) unless the pair
+    carries a third element `True`, as in ("true_x_ecef_m", pa.float64(), True)."""
+    return pa.schema([pa.field(name, kind, nullable=bool(rest and rest[0])) for name, kind, *rest in columns])
+
+
 class InputError(ValueError):
     """An input file is missing or malformed; the message names the file and the column."""
 

@@ -22,15 +22,16 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
+from pipeline import io
 from pipeline.params import Windows
 from pipeline.scaling import PLOT_FEATURES, STATE_FEATURES, WindowScaler, plot_scaler, state_scaler
 from pipeline.windows import TargetPlots, balance, gather, linearity, long_table, state_features, window_starts
 
-HOLDOUT_SCHEMA = pa.schema([pa.field(name, kind, nullable=False) for name, kind in (
+HOLDOUT_SCHEMA = io.schema(
     ("scenario_id", pa.int32()), ("segment_id", pa.int64()), ("plot_id", pa.int64()), ("time_unix_s", pa.float64()),
     ("x_ecef_m", pa.float64()), ("y_ecef_m", pa.float64()), ("z_ecef_m", pa.float64()), ("range_m", pa.float64()),
     ("true_x_ecef_m", pa.float64()), ("true_y_ecef_m", pa.float64()), ("true_z_ecef_m", pa.float64()),
-    ("true_range_m", pa.float64()))])
+    ("true_range_m", pa.float64()))
 
 # (before, after balancing) in the thesis, for the report.
 THESIS_COUNTS = {"filter": (83309, 39682), "predictor": (93675, 50730), "autoencoder": (96751, 12464)}

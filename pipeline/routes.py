@@ -26,28 +26,28 @@ import numpy as np
 import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import geodesy
+from pipeline import geodesy, io
 from pipeline.params import STRATEGIES, Aircraft, ConstantJerk, Params, RandomTurns, Radar, Split
 
 DIFFERENTIATION_STEP_S = 0.05
 
-ROUTE_SCHEMA = pa.schema([
-    pa.field("route_id", pa.int32(), nullable=False),
-    pa.field("strategy", pa.string(), nullable=False),
-    pa.field("aircraft_type", pa.string(), nullable=False),
-    pa.field("time_unix_s", pa.float64(), nullable=False),
-    pa.field("x_ecef_m", pa.float64(), nullable=False),
-    pa.field("y_ecef_m", pa.float64(), nullable=False),
-    pa.field("z_ecef_m", pa.float64(), nullable=False),
-    pa.field("vx_ecef_mps", pa.float64(), nullable=False),
-    pa.field("vy_ecef_mps", pa.float64(), nullable=False),
-    pa.field("vz_ecef_mps", pa.float64(), nullable=False),
-    pa.field("latitude_deg", pa.float64(), nullable=False),
-    pa.field("longitude_deg", pa.float64(), nullable=False),
-    pa.field("altitude_m", pa.float64(), nullable=False),
-    pa.field("east_m", pa.float64(), nullable=False),
-    pa.field("north_m", pa.float64(), nullable=False),
-])
+ROUTE_SCHEMA = io.schema(
+    ("route_id", pa.int32()),
+    ("strategy", pa.string()),
+    ("aircraft_type", pa.string()),
+    ("time_unix_s", pa.float64()),
+    ("x_ecef_m", pa.float64()),
+    ("y_ecef_m", pa.float64()),
+    ("z_ecef_m", pa.float64()),
+    ("vx_ecef_mps", pa.float64()),
+    ("vy_ecef_mps", pa.float64()),
+    ("vz_ecef_mps", pa.float64()),
+    ("latitude_deg", pa.float64()),
+    ("longitude_deg", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("east_m", pa.float64()),
+    ("north_m", pa.float64()),
+)
 
 
 class RouteGenerationError(RuntimeError):

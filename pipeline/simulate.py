@@ -13,60 +13,60 @@ import numpy as np
 import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import geodesy, radar as radar_model
+from pipeline import geodesy, io, radar as radar_model
 from pipeline.params import Params, Split
 
-PLOT_SCHEMA = pa.schema([
-    pa.field("scenario_id", pa.int32(), nullable=False),
-    pa.field("plot_id", pa.int64(), nullable=False),
-    pa.field("radar_id", pa.int32(), nullable=False),
-    pa.field("scan", pa.int64(), nullable=False),
-    pa.field("time_of_day_s", pa.float64(), nullable=False),
-    pa.field("time_unix_s", pa.float64(), nullable=False),
-    pa.field("range_m", pa.float64(), nullable=False),
-    pa.field("azimuth_deg", pa.float64(), nullable=False),
-    pa.field("flight_level", pa.float64(), nullable=False),
-    pa.field("altitude_m", pa.float64(), nullable=False),
-    pa.field("x_ecef_m", pa.float64(), nullable=False),
-    pa.field("y_ecef_m", pa.float64(), nullable=False),
-    pa.field("z_ecef_m", pa.float64(), nullable=False),
-    pa.field("is_target", pa.bool_(), nullable=False),
-    pa.field("target_id", pa.int32(), nullable=False),
-    pa.field("true_x_ecef_m", pa.float64()),
-    pa.field("true_y_ecef_m", pa.float64()),
-    pa.field("true_z_ecef_m", pa.float64()),
-])
+PLOT_SCHEMA = io.schema(
+    ("scenario_id", pa.int32()),
+    ("plot_id", pa.int64()),
+    ("radar_id", pa.int32()),
+    ("scan", pa.int64()),
+    ("time_of_day_s", pa.float64()),
+    ("time_unix_s", pa.float64()),
+    ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()),
+    ("flight_level", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("x_ecef_m", pa.float64()),
+    ("y_ecef_m", pa.float64()),
+    ("z_ecef_m", pa.float64()),
+    ("is_target", pa.bool_()),
+    ("target_id", pa.int32()),
+    ("true_x_ecef_m", pa.float64(), True),
+    ("true_y_ecef_m", pa.float64(), True),
+    ("true_z_ecef_m", pa.float64(), True),
+)
 
-TRUTH_SCHEMA = pa.schema([
-    pa.field("scenario_id", pa.int32(), nullable=False),
-    pa.field("target_id", pa.int32(), nullable=False),
-    pa.field("scan", pa.int64(), nullable=False),
-    pa.field("time_unix_s", pa.float64(), nullable=False),
-    pa.field("x_ecef_m", pa.float64(), nullable=False),
-    pa.field("y_ecef_m", pa.float64(), nullable=False),
-    pa.field("z_ecef_m", pa.float64(), nullable=False),
-    pa.field("range_m", pa.float64(), nullable=False),
-    pa.field("azimuth_deg", pa.float64(), nullable=False),
-    pa.field("altitude_m", pa.float64(), nullable=False),
-    pa.field("in_coverage", pa.bool_(), nullable=False),
-    pa.field("snr_db", pa.float64(), nullable=False),
-    pa.field("detection_probability", pa.float64(), nullable=False),
-    pa.field("detected", pa.bool_(), nullable=False),
-])
+TRUTH_SCHEMA = io.schema(
+    ("scenario_id", pa.int32()),
+    ("target_id", pa.int32()),
+    ("scan", pa.int64()),
+    ("time_unix_s", pa.float64()),
+    ("x_ecef_m", pa.float64()),
+    ("y_ecef_m", pa.float64()),
+    ("z_ecef_m", pa.float64()),
+    ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("in_coverage", pa.bool_()),
+    ("snr_db", pa.float64()),
+    ("detection_probability", pa.float64()),
+    ("detected", pa.bool_()),
+)
 
-RADAR_SCHEMA = pa.schema([
-    pa.field("radar_id", pa.int32(), nullable=False),
-    pa.field("sac", pa.int32(), nullable=False),
-    pa.field("sic", pa.int32(), nullable=False),
-    pa.field("latitude_deg", pa.float64(), nullable=False),
-    pa.field("longitude_deg", pa.float64(), nullable=False),
-    pa.field("height_m", pa.float64(), nullable=False),
-    pa.field("x_ecef_m", pa.float64(), nullable=False),
-    pa.field("y_ecef_m", pa.float64(), nullable=False),
-    pa.field("z_ecef_m", pa.float64(), nullable=False),
-    pa.field("scan_period_s", pa.float64(), nullable=False),
-    pa.field("range_max_m", pa.float64(), nullable=False),
-])
+RADAR_SCHEMA = io.schema(
+    ("radar_id", pa.int32()),
+    ("sac", pa.int32()),
+    ("sic", pa.int32()),
+    ("latitude_deg", pa.float64()),
+    ("longitude_deg", pa.float64()),
+    ("height_m", pa.float64()),
+    ("x_ecef_m", pa.float64()),
+    ("y_ecef_m", pa.float64()),
+    ("z_ecef_m", pa.float64()),
+    ("scan_period_s", pa.float64()),
+    ("range_max_m", pa.float64()),
+)
 
 ROUTE_COLUMNS = ("route_id", "aircraft_type", "time_unix_s", "x_ecef_m", "y_ecef_m", "z_ecef_m",
                  "vx_ecef_mps", "vy_ecef_mps", "vz_ecef_mps")

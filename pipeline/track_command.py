@@ -30,39 +30,39 @@ from pipeline.tracker.tracks import status
 
 log = logging.getLogger("pipeline")
 
-PLOT_INPUT_SCHEMA = pa.schema([
-    pa.field("plot_id", pa.int64(), nullable=False),
-    pa.field("radar_id", pa.int32(), nullable=False),
-    pa.field("time_unix_s", pa.float64(), nullable=False),
-    pa.field("range_m", pa.float64(), nullable=False),
-    pa.field("azimuth_deg", pa.float64(), nullable=False),
-    pa.field("altitude_m", pa.float64(), nullable=False),
-    pa.field("scenario_id", pa.int32()),
-])
-RADAR_INPUT_SCHEMA = pa.schema([
-    pa.field("radar_id", pa.int32(), nullable=False),
-    pa.field("latitude_deg", pa.float64(), nullable=False),
-    pa.field("longitude_deg", pa.float64(), nullable=False),
-    pa.field("height_m", pa.float64(), nullable=False),
-])
-TRACK_SCHEMA = pa.schema([
-    pa.field("radar_id", pa.int32(), nullable=False),
-    pa.field("scenario_id", pa.int32()),
-    pa.field("track_id", pa.int64(), nullable=False),
-    pa.field("time_unix_s", pa.float64(), nullable=False),
-    pa.field("plot_id", pa.int64(), nullable=False),
-    pa.field("x_ecef_m", pa.float64(), nullable=False),
-    pa.field("y_ecef_m", pa.float64(), nullable=False),
-    pa.field("z_ecef_m", pa.float64(), nullable=False),
-    pa.field("latitude_deg", pa.float64(), nullable=False),
-    pa.field("longitude_deg", pa.float64(), nullable=False),
-    pa.field("altitude_m", pa.float64(), nullable=False),
-    pa.field("range_m", pa.float64(), nullable=False),
-    pa.field("weight", pa.float64(), nullable=False),
-    pa.field("status", pa.string(), nullable=False),
-    pa.field("association", pa.string(), nullable=False),
-    pa.field("association_error", pa.float64()),
-])
+PLOT_INPUT_SCHEMA = io.schema(
+    ("plot_id", pa.int64()),
+    ("radar_id", pa.int32()),
+    ("time_unix_s", pa.float64()),
+    ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("scenario_id", pa.int32(), True),
+)
+RADAR_INPUT_SCHEMA = io.schema(
+    ("radar_id", pa.int32()),
+    ("latitude_deg", pa.float64()),
+    ("longitude_deg", pa.float64()),
+    ("height_m", pa.float64()),
+)
+TRACK_SCHEMA = io.schema(
+    ("radar_id", pa.int32()),
+    ("scenario_id", pa.int32(), True),
+    ("track_id", pa.int64()),
+    ("time_unix_s", pa.float64()),
+    ("plot_id", pa.int64()),
+    ("x_ecef_m", pa.float64()),
+    ("y_ecef_m", pa.float64()),
+    ("z_ecef_m", pa.float64()),
+    ("latitude_deg", pa.float64()),
+    ("longitude_deg", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("range_m", pa.float64()),
+    ("weight", pa.float64()),
+    ("status", pa.string()),
+    ("association", pa.string()),
+    ("association_error", pa.float64(), True),
+)
 
 
 def read_parquet_recording(plots_path: Path, radar_path: Path) -> tuple[pa.Table, pa.Table]:
