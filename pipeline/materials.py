@@ -18,6 +18,7 @@ segments in metres, so model evaluation can window them exactly as it likes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import pyarrow as pa
@@ -72,37 +73,36 @@ def _balanced(plots: TargetPlots, starts: np.ndarray, length: int, cfg: Windows,
     return starts[keep], values, values[keep]
 
 
-def filter_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, rng: np.random.Generator) -> Material:
-    length = cfg.filter_length
+def _material(plots: TargetPlots, length: int, cfg: Windows, scaler: WindowScaler, rng: np.random.Generator,
+              raw_windows: Callable[[np.ndarray], dict[str, np.ndarray]]) -> Material:
+    """Balanced windows of `length` whose raw arrays (by column prefix) come from `raw_windows(starts)`;
+    all are centred on the first array's first sample."""
     starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
-    raw_in = gather(plots.plot_features(), starts, length)
-    raw_out = gather(plots.true_features(), starts, length)
-    origin = scaler.origin(raw_in)
-    table = long_table({"in": scaler.transform(raw_in, origin), "out": scaler.transform(raw_out, origin)},
+    raw = raw_windows(starts)
+    origin = scaler.origin(next(iter(raw.values())))
+    table = long_table({prefix: scaler.transform(values, origin) for prefix, values in raw.items()},
                        _ids(plots, starts, length), _per_window(origin, after))
     return Material(table, before, after)
+
+
+def filter_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, rng: np.random.Generator) -> Material:
+    length = cfg.filter_length
+    return _material(plots, length, cfg, scaler, rng, lambda starts: {
+        "in": gather(plots.plot_features(), starts, length), "out": gather(plots.true_features(), starts, length)})
 
 
 def predictor_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, rng: np.random.Generator
                        ) -> Material:
     length = cfg.predictor_inputs + 1
-    starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
-    raw = state_features(plots.true_features(), starts, length)
-    origin = scaler.origin(raw)
-    table = long_table({"state": scaler.transform(raw, origin)}, _ids(plots, starts, length),
-                       _per_window(origin, after))
-    return Material(table, before, after)
+    return _material(plots, length, cfg, scaler, rng,
+                     lambda starts: {"state": state_features(plots.true_features(), starts, length)})
 
 
 def autoencoder_material(plots: TargetPlots, cfg: Windows, scaler: WindowScaler, rng: np.random.Generator
                          ) -> Material:
     length = cfg.autoencoder_length
-    starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
-    raw = gather(plots.plot_features(), starts, length)
-    origin = scaler.origin(raw)
-    table = long_table({"in": scaler.transform(raw, origin)}, _ids(plots, starts, length),
-                       _per_window(origin, after))
-    return Material(table, before, after)
+    return _material(plots, length, cfg, scaler, rng,
+                     lambda starts: {"in": gather(plots.plot_features(), starts, length)})
 
 
 def calibration_material(targets: TargetPlots, all_plots: pa.Table, cfg: Windows, scaler: WindowScaler) -> pa.Table:
