@@ -133,7 +133,7 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                                              "height_m)")
         command.add_argument("--asterix", action="append", help="ASTERIX CAT048 + CAT034 file (repeatable)")
         command.add_argument("--date", help="UTC date of the first ASTERIX record, YYYY-MM-DD")
-        command.add_argument("--method", default="via", choices=("radius", "via", "mia", "ae"),
+        command.add_argument("--method", default="via", choices=("radius", "via", "mia", "ae", "kalman_cv"),
                              help="association method (default: %(default)s)")
         command.add_argument("--window", type=float, default=4000.0,
                              help="association window in metres (default: %(default)s)")

@@ -86,7 +86,7 @@ def evaluate_run(run: EvaluationRun, scenarios: list[Scenario], models: Models, 
     for done, scenario in enumerate(scenarios, start=1):
         start = time.perf_counter()
         updates = track_plots(scenario.features, scenario.plot_ids, run.method, run.window_m, models, params.tracker,
-                              seed=[params.tracker.seed, scenario.scenario_id])
+                              seed=[params.tracker.seed, scenario.scenario_id], radar=params.radar)
         elapsed += time.perf_counter() - start
         counts.append(route_counts(updates, scenario.is_target, scenario.truth, params.tracker.weight_confirmed))
         updates_by_scenario[scenario.scenario_id] = updates

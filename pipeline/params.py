@@ -173,6 +173,9 @@ class TrackerParams:
     mia_k_padded_base: float
     seed: int
     inference: str
+    kalman_acceleration_std_mps2: float
+    kalman_gate_probability: float
+    kalman_max_speed_mps: float
 
 
 @dataclass(frozen=True)
@@ -450,7 +453,7 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
     )
 
 
-ASSOCIATION_METHODS = ("radius", "via", "mia", "ae")
+ASSOCIATION_METHODS = ("radius", "via", "mia", "ae", "kalman_cv")
 
 
 def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
@@ -471,7 +474,12 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
         mia_k_padded_base=_positive(tree, "mia_k_padded_base", p),
         seed=_integer(tree, "seed", p),
         inference=_text(tree, "inference", p),
+        kalman_acceleration_std_mps2=_positive(tree, "kalman_acceleration_std_mps2", p),
+        kalman_gate_probability=_number(tree, "kalman_gate_probability", p, 0.0, 1.0, low_open=True),
+        kalman_max_speed_mps=_positive(tree, "kalman_max_speed_mps", p),
     )
+    if tracker.kalman_gate_probability >= 1.0:
+        raise ParamError(f"{p}.kalman_gate_probability = {tracker.kalman_gate_probability}: must be below 1")
     if tracker.inference not in ("onnx", "torch"):
         raise ParamError(f"{p}.inference = {tracker.inference!r}: must be 'onnx' or 'torch'")
     if not tracker.weight_start < tracker.weight_candidate < tracker.weight_confirmed:

@@ -115,7 +115,7 @@ def _track_group(plots: pa.Table, radar: object, radar_id: int, scenario_id: int
     features = np.column_stack([times[order], ecef, range_m])
     seed = [params.tracker.seed, scenario_id] if scenario_id >= 0 else [params.tracker.seed]
     updates = track_plots(features, plots.column("plot_id").to_numpy()[order], method, window_m, models,
-                          params.tracker, seed=seed)
+                          params.tracker, seed=seed, radar=radar)
     states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])
     lat, lon, alt = geodesy.ecef_to_geodetic(states)
     count = len(updates["track_id"])

@@ -104,16 +104,17 @@ def markdown_table(results: dict[str, dict]) -> str:
             out.append("n/a" if value is None or (isinstance(value, float) and np.isnan(value)) else form.format(value))
         return " | ".join(out)
 
-    order = ("radius", "via", "mia", "ae")
+    labels = {"radius": "radius", "via": "VIA", "mia": "MIA", "ae": "AE", "kalman_cv": "Kalman CV (classical)"}
+    order = list(labels)
 
     def position(name: str) -> tuple[int, float]:
-        method, window = name.split("_")
+        method, window = name.rsplit("_", 1)
         return (order.index(method) if method in order else len(order), float(window))
 
     for name in sorted(results, key=position):
         values = results[name]
-        method, window = name.split("_")
-        label = f"{method.upper()} {window}"
+        method, window = name.rsplit("_", 1)
+        label = f"{labels.get(method, method)} {window}"
         lines.append(f"| {label} | ours | {cells(values)} |")
         if name in THESIS:
             lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")

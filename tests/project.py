@@ -30,7 +30,8 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["windows"]["holdout_fraction"] = 0.25  # a handful of segments: 5 % would hold out none
     for network in ("filter", "predictor", "autoencoder"):
         tree["training"][network]["epochs"] = 2
-    tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0}]
+    tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0},
+                                {"method": "kalman_cv", "window_m": 4000.0}]
     tree["evaluate"]["example_scenarios"] = 1
     tree["evaluate"]["example_run"] = "via_4000"
     return tree

@@ -16,7 +16,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import cli, io
+from pipeline import cli, geodesy, io
 from pipeline.evaluate_stage import load_tracker_models
 from pipeline.tracker.estimators import NetworkEstimator
 from pipeline.tracker.run import track_plots
@@ -25,7 +25,7 @@ from pipeline.track_command import run_track, track_recording
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 
-METHODS = ("radius", "via", "mia", "ae")
+METHODS = ("radius", "via", "mia", "ae", "kalman_cv")
 WINDOW_M = 4000.0
 
 # Third-party deprecation notices (Lightning's pytree use), not ours.
@@ -49,7 +49,7 @@ def models(models_dir):
 
 def run(features: np.ndarray, plot_ids: np.ndarray, method: str, models, params, window_m: float = WINDOW_M
         ) -> dict[str, np.ndarray]:
-    return track_plots(features, plot_ids, method, window_m, models, params.tracker)
+    return track_plots(features, plot_ids, method, window_m, models, params.tracker, radar=params.radar)
 
 
 def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:
@@ -108,7 +108,7 @@ def test_straight_target_without_clutter_gives_one_confirmed_track_holding_every
     assert updates["weight"][:4].tolist() == pytest.approx([0.4, 0.6, 0.8, 1.0])
     assert [status(w, params.tracker) for w in updates["weight"][:4]] == [
         "tentative", "tentative", "candidate", "confirmed"]
-    young = {"radius": 39, "via": 1, "mia": 1, "ae": 4}[method]
+    young = {"radius": 39, "via": 1, "mia": 1, "ae": 4, "kalman_cv": 1}[method]
     assert updates["association"].tolist() == ["start"] + ["radius"] * young + [method] * (39 - young)
     assert np.isnan(updates["association_error"][0])
     assert ((updates["association_error"][1:] >= 0.0) & (updates["association_error"][1:] < 1.0)).all()
@@ -147,7 +147,7 @@ def test_clutter_alone_never_confirms_a_track(method, models, params):
     assert "confirmed" not in {status(w, params.tracker) for w in updates["weight"]}
 
 
-@pytest.mark.parametrize("method", ("via", "mia", "ae"))
+@pytest.mark.parametrize("method", ("via", "mia", "ae", "kalman_cv"))
 def test_target_in_clutter_keeps_its_own_plots(method, models, params):
     """A straight target among 8 clutter plots per scan: its plots form one track, confirmed from its 4th
     plot on, and no clutter plot is associated to a confirmed track."""
@@ -458,3 +458,22 @@ def test_mia_tracks_a_recording_without_scenario_ids(recording, params, models_d
                              pa.nulls(plots.num_rows, pa.int32()))
     table = track_recording(plots, radars, "mia", WINDOW_M, params, models_dir, "no scenario")
     assert table.num_rows == plots.num_rows
+
+
+def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params):
+    """The classical gate: after 10 plots of a straight flight the Kalman prediction takes the 11th plot
+    (normalised error below 1) and rejects the same plot moved 5 km east (infinite error)."""
+    from pipeline.tracker.kalman import KalmanEstimator, MahalanobisGate
+    from pipeline.tracker.tracks import Track
+
+    features = tf.straight_features(params.radar, (60e3, -40e3, 9000.0), (200.0, 50.0, 0.0), 11)
+    estimator = KalmanEstimator(params.radar, params.tracker)
+    track = Track(0, [features[0]], [features[0]], [0])
+    for plot in features[1:10]:
+        track.plots.append(plot)
+        track.states.append(estimator.update(track, plot, plot))
+    gate = MahalanobisGate(estimator, params.tracker.kalman_gate_probability)
+    moved = features[10].copy()
+    moved[1:4] += 5000.0 * geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg)[0]
+    assert gate([track], features[10]).errors[0] < 1.0
+    assert np.isinf(gate([track], moved).errors[0])

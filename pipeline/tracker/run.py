@@ -16,10 +16,11 @@ from typing import Callable
 import numpy as np
 import torch
 
-from pipeline.params import TrackerParams
+from pipeline.params import Radar, TrackerParams
 from pipeline.tracker.association import (AutoencoderGate, MonteCarloGate, PredictionGate, Scores,
                                            radius_scores)
 from pipeline.tracker.estimators import NetworkEstimator
+from pipeline.tracker.kalman import KalmanEstimator, MahalanobisGate
 from pipeline.tracker.models import Models
 from pipeline.tracker.tracks import LiveTracks, Track
 
@@ -27,9 +28,22 @@ UPDATE_COLUMNS = ("track_id", "time_unix_s", "plot_id", "x_ecef_m", "y_ecef_m", 
                   "association", "association_error")
 
 
-def make_gate(method: str, window_m: float, estimator: NetworkEstimator, models: Models, params: TrackerParams,
-              seed: int | list[int]) -> tuple[Callable[[list[Track], np.ndarray], Scores] | None, int]:
+def make_estimator(method: str, models: Models, radar: Radar | None, params: TrackerParams
+                   ) -> NetworkEstimator | KalmanEstimator:
+    """The state estimator a method runs with: the networks, or a Kalman filter per track."""
+    if method == "kalman_cv":
+        if radar is None:
+            raise ValueError("the kalman_cv method needs the radar (for the measurement covariance)")
+        return KalmanEstimator(radar, params)
+    return NetworkEstimator(models)
+
+
+def make_gate(method: str, window_m: float, estimator: NetworkEstimator | KalmanEstimator, models: Models,
+              params: TrackerParams, seed: int | list[int]
+              ) -> tuple[Callable[[list[Track], np.ndarray], Scores] | None, int]:
     """The mature-track gate of a method and the plot count from which a track is mature."""
+    if method == "kalman_cv":
+        return MahalanobisGate(estimator, params.kalman_gate_probability), params.young_track_plots
     if method == "radius":
         return None, np.iinfo(np.int64).max
     if method == "via":
@@ -40,18 +54,19 @@ def make_gate(method: str, window_m: float, estimator: NetworkEstimator, models:
         if models.autoencoder is None:
             raise ValueError("the ae method needs the autoencoder model")
         return AutoencoderGate(models.autoencoder, models.runnable["autoencoder"]), params.young_track_plots_ae
-    raise ValueError(f"association method {method!r}: must be radius, via, mia or ae")
+    raise ValueError(f"association method {method!r}: must be radius, via, mia, ae or kalman_cv")
 
 
 def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_m: float, models: Models,
-                params: TrackerParams, seed: int | list[int] | None = None) -> dict[str, np.ndarray]:
+                params: TrackerParams, seed: int | list[int] | None = None, radar: Radar | None = None
+                ) -> dict[str, np.ndarray]:
     """Track one radar's plots. `features` rows are [t, x, y, z, r] (ECEF), sorted by time.
-    `seed` seeds the MIA sampling (default: the tracker seed).
+    `seed` seeds the MIA sampling (default: the tracker seed); `radar` is needed by kalman_cv.
 
     Returns one row per track update (a track's start counts as its first update).
     """
     torch.set_num_threads(1)  # batches of a few windows: threads only add contention
-    estimator = NetworkEstimator(models)
+    estimator = make_estimator(method, models, radar, params)
     gate, mature_from = make_gate(method, window_m, estimator, models, params,
                                   params.seed if seed is None else seed)
     live = LiveTracks()

@@ -26,12 +26,14 @@ EPSILON = 1e-9
 
 @dataclass
 class Track:
-    """History of one track: states and plots as [t, x, y, z, r] rows (ECEF metres, seconds)."""
+    """History of one track: states and plots as [t, x, y, z, r] rows (ECEF metres, seconds).
+    `estimate` is whatever a classical estimator keeps per track (a Kalman filter and its time)."""
 
     track_id: int
     states: list[np.ndarray] = field(default_factory=list)
     plots: list[np.ndarray] = field(default_factory=list)
     plot_ids: list[int] = field(default_factory=list)
+    estimate: object = None
 
 
 class LiveTracks:
