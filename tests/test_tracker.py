@@ -470,8 +470,8 @@ def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params)
     estimator = KalmanEstimator(params.radar, params.tracker)
     track = Track(0, [features[0]], [features[0]], [0])
     for plot in features[1:10]:
-        track.plots.append(plot)
         track.states.append(estimator.update(track, plot, plot))
+        track.plots.append(plot)
     gate = MahalanobisGate(estimator, params.tracker.kalman_gate_probability)
     moved = features[10].copy()
     moved[1:4] += 5000.0 * geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg)[0]

@@ -60,16 +60,16 @@ class NetworkEstimator:
         return self.predict_windows(windows), padded
 
     def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-        """New state after associating `plot` (already appended to the track's plots).
+        """New state after associating `plot` (not yet added to the track's plots).
 
-        With `filter_plots` plots the filter network denoises the last ones; before that the
-        state is the mean of the prediction and the plot (position and range).
+        With `filter_plots` plots, the new one included, the filter network denoises the last
+        ones; before that the state is the mean of the prediction and the plot (position and range).
         """
-        if len(track.plots) < self.filter_plots:
+        if len(track.plots) + 1 < self.filter_plots:
             state = 0.5 * (predicted + plot)
             state[0] = plot[0]
             return state
-        window = np.asarray(track.plots[-self.filter_plots:])[None]
+        window = np.vstack([*track.plots[-(self.filter_plots - 1):], plot])[None]
         origin = self.filter.scaler.origin(window)
         outputs = self._run_filter(self.filter.scaler.transform(window, origin)).astype(float)
         output = self._filter_out.inverse(outputs, origin)[0, -1]

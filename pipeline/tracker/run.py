@@ -95,9 +95,7 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
         track = live.tracks[index]
         if predicted is None:
             predicted = estimator.predict([track], np.array([plot[0]]))[0][0]
-        track.plots.append(plot)
         state = estimator.update(track, plot, predicted)
-        track.plots.pop()
         live.associate(index, plot, int(plot_id), state, params)
         record(index, int(plot_id), state, method if by_method else "radius", error)
     return {name: np.asarray(values) for name, values in rows.items()}
