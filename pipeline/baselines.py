@@ -51,10 +51,15 @@ def constant_velocity_filter(position: np.ndarray, covariance: np.ndarray, max_s
     return kf
 
 
+def constant_velocity_model(dt: float, acceleration_std: float) -> tuple[np.ndarray, np.ndarray]:
+    """Transition F and white-acceleration process noise Q of [x, vx, y, vy, z, vz] over dt."""
+    transition = np.kron(np.eye(3), np.array([[1.0, dt], [0.0, 1.0]]))
+    noise = Q_discrete_white_noise(dim=2, dt=dt, var=acceleration_std ** 2, block_size=3, order_by_dim=True)
+    return transition, noise
+
+
 def _predict(kf: KalmanFilter, dt: float, acceleration_std: float) -> None:
-    block = np.array([[1.0, dt], [0.0, 1.0]])
-    kf.F = np.kron(np.eye(3), block)
-    kf.Q = Q_discrete_white_noise(dim=2, dt=dt, var=acceleration_std ** 2, block_size=3, order_by_dim=True)
+    kf.F, kf.Q = constant_velocity_model(dt, acceleration_std)
     kf.predict()
 
 

@@ -16,9 +16,6 @@ from pathlib import Path
 
 from pipeline.io import InputError
 
-PROJECT_EXPERIMENT = "radar-nn-tracker"
-
-
 class TrackingError(RuntimeError):
     """The MLflow tracking store cannot be used; the message names the URI."""
 

@@ -17,7 +17,6 @@ S = H P H' + R, inside the gate when d^2 is below the chi-square quantile of
 from __future__ import annotations
 
 import numpy as np
-from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
@@ -27,12 +26,6 @@ from pipeline.tracker.association import Scores
 from pipeline.tracker.tracks import Track
 
 MEASURED = baselines.MEASURED
-
-
-def _transition(dt: float, acceleration_std: float) -> tuple[np.ndarray, np.ndarray]:
-    transition = np.kron(np.eye(3), np.array([[1.0, dt], [0.0, 1.0]]))
-    noise = Q_discrete_white_noise(dim=2, dt=dt, var=acceleration_std ** 2, block_size=3, order_by_dim=True)
-    return transition, noise
 
 
 class KalmanEstimator:
@@ -55,7 +48,8 @@ class KalmanEstimator:
         states, covariances = [], []
         for track in tracks:
             kf = self._filter(track)
-            transition, noise = _transition(time - track.estimate[1], self.params.kalman_acceleration_std_mps2)
+            transition, noise = baselines.constant_velocity_model(time - track.estimate[1],
+                                                                  self.params.kalman_acceleration_std_mps2)
             states.append(transition @ kf.x)
             covariances.append(transition @ kf.P @ transition.T + noise)
         return np.array(states), np.array(covariances)
@@ -72,7 +66,8 @@ class KalmanEstimator:
     def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray) -> np.ndarray:
         """Predict the track's filter to the plot and update it with the plot."""
         kf = self._filter(track)
-        kf.F, kf.Q = _transition(plot[0] - track.estimate[1], self.params.kalman_acceleration_std_mps2)
+        kf.F, kf.Q = baselines.constant_velocity_model(plot[0] - track.estimate[1],
+                                                       self.params.kalman_acceleration_std_mps2)
         kf.predict()
         kf.update(plot[1:4], R=baselines.measurement_covariance(plot[None, 1:4], self.radar)[0])
         track.estimate = (kf, plot[0])

@@ -7,8 +7,7 @@ Weights: a new track starts at `weight_start` (0.4), is a candidate at `weight_c
 deleted. The thesis does not say what happens to a track lowered at or below the start
 weight: here it is deleted too, so clutter tracks die after one silence period.
 
-The live tracks are kept as NumPy arrays (last position, weight, time of the last weight
-change) so management and the pre-filter are vector operations over all tracks; each
+The live tracks are kept as NumPy arrays (last position, weight, plot count) so management and the pre-filter are vector operations over all tracks; each
 track's history is a short Python list, touched only when the track is a candidate.
 """
 
@@ -52,7 +51,6 @@ class LiveTracks:
         self.last_state = np.full((capacity, 3), np.inf)
         self.last_plot = np.full((capacity, 3), np.inf)
         self.weight = np.zeros(capacity)
-        self.last_change = np.full(capacity, np.inf)
         self.plot_count = np.zeros(capacity, dtype=np.int64)
         self.alive = np.zeros(capacity, dtype=bool)
         self._generation = [0] * capacity
@@ -69,7 +67,6 @@ class LiveTracks:
         self.last_state = np.vstack([self.last_state, np.full((capacity, 3), np.inf)])
         self.last_plot = np.vstack([self.last_plot, np.full((capacity, 3), np.inf)])
         self.weight = np.concatenate([self.weight, np.zeros(capacity)])
-        self.last_change = np.concatenate([self.last_change, np.full(capacity, np.inf)])
         self.plot_count = np.concatenate([self.plot_count, np.zeros(capacity, dtype=np.int64)])
         self.alive = np.concatenate([self.alive, np.zeros(capacity, dtype=bool)])
         self._generation.extend([0] * capacity)
@@ -85,7 +82,6 @@ class LiveTracks:
         self.last_state[slot] = plot[1:4]
         self.last_plot[slot] = plot[1:4]
         self.weight[slot] = weight
-        self.last_change[slot] = plot[0]
         self.plot_count[slot] = 1
         self.alive[slot] = True
         self._schedule(slot, plot[0] + silence_s)
@@ -104,7 +100,6 @@ class LiveTracks:
         self.last_state[slot] = state[1:4]
         self.last_plot[slot] = plot[1:4]
         self.weight[slot] = min(self.weight[slot] + params.weight_step, params.weight_confirmed)
-        self.last_change[slot] = plot[0]
         self.plot_count[slot] += 1
         self._schedule(slot, plot[0] + params.silence_s)
 
@@ -121,7 +116,6 @@ class LiveTracks:
                 removed.append(self._remove(slot))
                 continue
             self.weight[slot] = lowered_from - params.weight_step
-            self.last_change[slot] = due
             self._schedule(slot, due + params.silence_s)
         return removed
 
@@ -133,7 +127,6 @@ class LiveTracks:
         self.alive[slot] = False
         self.last_state[slot] = np.inf
         self.last_plot[slot] = np.inf
-        self.last_change[slot] = np.inf
         return track
 
 
