@@ -34,14 +34,15 @@ def main() -> None:
     split = params.evaluate.split
     plots = io.read_parquet(Path("data/simulated") / split / "plots.parquet", simulate.PLOT_SCHEMA)
     route_table = io.read_parquet(Path("data/routes") / f"{split}.parquet", routes.ROUTE_SCHEMA)
-    scenarios = load_scenarios(plots, route_table)[:args.scenarios]
-    models = load_tracker_models(Path("models"), params, "ae" in args.methods)
+    truth = io.read_parquet(Path("data/simulated") / split / "truth.parquet", simulate.TRUTH_SCHEMA)
+    scenarios = load_scenarios(plots, route_table, truth)[:args.scenarios]
+    models = load_tracker_models(Path("models"), params, list(args.methods))
     count = sum(len(s.features) for s in scenarios)
     for method in args.methods:
         start = time.perf_counter()
         for scenario in scenarios:
             track_plots(scenario.features, scenario.plot_ids, method, args.window, models, params.tracker,
-                        seed=[params.tracker.seed, scenario.scenario_id])
+                        seed=[params.tracker.seed, scenario.scenario_id], radar=params.radar)
         elapsed = time.perf_counter() - start
         print(f"{method:7s} {count} plots in {elapsed:.1f} s: {count / elapsed:,.0f} plots/s")
 

@@ -9,7 +9,7 @@ from datetime import date
 from pathlib import Path
 
 from pipeline.io import InputError
-from pipeline.params import ParamError, load_params
+from pipeline.params import ASSOCIATION_METHODS, ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
 
@@ -44,6 +44,16 @@ def _train(args: argparse.Namespace) -> None:
 def _models_report(args: argparse.Namespace) -> None:
     from pipeline.train_stage import run_models_report
     run_models_report(Path(args.reports))
+
+
+def _tune_kalman(args: argparse.Namespace) -> None:
+    from pipeline.tune_stage import run_tune
+    run_tune(load_params(args.params), Path(args.simulated), Path(args.models), Path(args.reports))
+
+
+def _compare(args: argparse.Namespace) -> None:
+    from pipeline.compare_stage import run_compare
+    run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
 
 
 def _evaluate(args: argparse.Namespace) -> None:
@@ -101,6 +111,14 @@ COMMANDS = {
               ["params", "kind", "windows", "models", "reports"]),
     "models-report": (_models_report, "Merge the networks' hold-out metrics into reports/models.json.",
                       "python -m pipeline models-report --reports reports", ["reports"]),
+    "tune-kalman": (_tune_kalman, "Tune the classical CV, CA and IMM filters on a split's target plots "
+                    "(scipy Nelder-Mead); writes models/kalman_tuned.json.",
+                    "python -m pipeline tune-kalman --simulated data/simulated --models models --reports reports",
+                    ["params", "simulated", "models", "reports"]),
+    "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
+                "against the tuned Kalman filters on the hold-out.",
+                "python -m pipeline compare --windows data/windows --models models --reports reports",
+                ["params", "windows", "models", "reports"]),
     "evaluate": (_evaluate, "Run the tracker with every method and window of params over the test scenarios.",
                  "python -m pipeline evaluate --simulated data/simulated --routes data/routes --models models",
                  ["params", "simulated", "routes", "models", "reports"]),
@@ -133,8 +151,9 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                                              "height_m)")
         command.add_argument("--asterix", action="append", help="ASTERIX CAT048 + CAT034 file (repeatable)")
         command.add_argument("--date", help="UTC date of the first ASTERIX record, YYYY-MM-DD")
-        command.add_argument("--method", default="via", choices=("radius", "via", "mia", "ae", "kalman_cv"),
-                             help="association method (default: %(default)s)")
+        command.add_argument("--method", default="via", choices=ASSOCIATION_METHODS,
+                             help="association method (default: %(default)s); the classical ones (kalman_cv, "
+                                  "kalman_ca, imm, and *_gnn) need models/kalman_tuned.json")
         command.add_argument("--window", type=float, default=4000.0,
                              help="association window in metres (default: %(default)s)")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")

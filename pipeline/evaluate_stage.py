@@ -3,6 +3,11 @@
 Each scenario is one radar recording tracked on its own, as in the thesis. The MIA
 sampling draws from a stream seeded by (tracker seed, scenario), so results do not depend
 on the order scenarios are run in.
+
+Besides the thesis's metrics every run gets OSPA (`pipeline.ospa`), ANEES where the tracker
+gives covariances, and its speed in plots per second (tracking time only, one core). Two
+references bound the problem: `plots`, the target's raw plots taken as the estimate with the
+true association, and `oracle`, the tuned IMM given the true association.
 """
 
 from __future__ import annotations
@@ -16,13 +21,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from pipeline import experiment_tracking, figures, io, materials, routes, simulate
+from pipeline import baselines, classical_filters, experiment_tracking, figures, io, materials, ospa, routes, simulate
 from pipeline.model_store import load_model
 from pipeline.params import EvaluationRun, Params
 from pipeline.stages import progress_logger
 from pipeline.tracker.models import Models
-from pipeline.tracker.run import track_plots
-from pipeline.tracker_metrics import THESIS, THESIS_PLOTS, RouteCounts, markdown_table, route_counts, summarise
+from pipeline.tracker.run import ORACLE, classical_kind, track_plots
+from pipeline.tracker_metrics import (THESIS, THESIS_PLOTS, RouteCounts, confirmed_nees, markdown_table, route_counts,
+                                      summarise)
 
 log = logging.getLogger("pipeline")
 
@@ -36,10 +42,14 @@ class Scenario:
     plot_ids: np.ndarray
     is_target: dict[int, bool]
     truth: object                 # t -> ECEF positions (a spline over the route)
+    scans: np.ndarray             # each plot's antenna scan
+    coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
 
 
-def load_tracker_models(models_dir: Path, params: Params, need_autoencoder: bool) -> Models:
-    """The trained networks, refusing any whose scaler differs from what params describe."""
+def load_tracker_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
+    """The trained networks, refusing any whose scaler differs from what params describe, and
+    the tuned classical filters when a method needs them."""
+    need_autoencoder = "ae" in methods
     expected = materials.scalers(params.windows)
     loaded = {}
     for kind, layout in (("predictor", "states"), ("filter", "plots"), ("autoencoder", "plots")):
@@ -51,12 +61,22 @@ def load_tracker_models(models_dir: Path, params: Params, need_autoencoder: bool
             raise io.InputError(f"{path}: built with the scaler {model.scaler}, but params give {expected[layout]}; "
                                 f"retrain it (dvc repro train_{kind})")
         loaded[kind] = model
-    return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"), params.tracker.inference)
+    filters = {}
+    if any(classical_kind(method) for method in methods):
+        path = models_dir / "kalman_tuned.json"
+        try:
+            filters = classical_filters.load_settings(path)
+        except (FileNotFoundError, ValueError) as error:
+            raise io.InputError(str(error)) from None
+    return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"), params.tracker.inference, filters)
 
 
-def load_scenarios(plots: pa.Table, route_table: pa.Table) -> list[Scenario]:
+def load_scenarios(plots: pa.Table, route_table: pa.Table, truth_table: pa.Table) -> list[Scenario]:
     scenarios = []
     route_ids = route_table.column("route_id").to_numpy()
+    truth_scenarios = truth_table.column("scenario_id").to_numpy()
+    truth_scans = truth_table.column("scan").to_numpy()
+    in_coverage = truth_table.column("in_coverage").to_numpy(zero_copy_only=False)
     for scenario_id in np.unique(plots.column("scenario_id").to_numpy()):
         part = plots.filter(pc.equal(plots.column("scenario_id"), scenario_id))
         order = np.argsort(part.column("time_unix_s").to_numpy(), kind="stable")
@@ -66,7 +86,9 @@ def load_scenarios(plots: pa.Table, route_table: pa.Table) -> list[Scenario]:
         route = route_table.filter(pa.array(route_ids == scenario_id))
         trajectory = simulate.trajectory_of({name: route.column(name).to_numpy() for name in simulate.ROUTE_COLUMNS})
         scenarios.append(Scenario(int(scenario_id), features, plot_ids,
-                                  dict(zip(plot_ids.tolist(), flags.tolist())), _clipped(trajectory)))
+                                  dict(zip(plot_ids.tolist(), flags.tolist())), _clipped(trajectory),
+                                  part.column("scan").to_numpy()[order],
+                                  np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage])))
     return scenarios
 
 
@@ -76,23 +98,63 @@ def _clipped(trajectory: object) -> object:
     return lambda t: trajectory(np.clip(t, start, end))
 
 
-def evaluate_run(run: EvaluationRun, scenarios: list[Scenario], models: Models, params: Params
-                 ) -> tuple[dict, dict[int, dict], float]:
-    """Metrics of one method and window, each scenario's updates, and plots per second."""
+def reference_updates(scenario: Scenario, method: str, models: Models, params: Params) -> dict[str, np.ndarray]:
+    """The references' updates, from the target's plots only: `plots` takes each plot as the
+    estimate of one always-confirmed track; `oracle` runs the tuned IMM tracker on them."""
+    target = np.array([scenario.is_target[int(p)] for p in scenario.plot_ids], dtype=bool)
+    features, plot_ids = scenario.features[target], scenario.plot_ids[target]
+    if method == ORACLE:
+        return track_plots(features, plot_ids, ORACLE, 0.0, models, params.tracker, radar=params.radar)
+    count = len(features)
+    return {"track_id": np.zeros(count, np.int64), "time_unix_s": features[:, 0], "plot_id": plot_ids,
+            "x_ecef_m": features[:, 1], "y_ecef_m": features[:, 2], "z_ecef_m": features[:, 3],
+            "range_m": features[:, 4], "weight": np.full(count, params.tracker.weight_confirmed),
+            "association": np.array(["truth"] * count), "association_error": np.zeros(count),
+            "position_covariance": baselines.measurement_covariance(features[:, 1:4], params.radar)}
+
+
+def evaluate_run(name: str, track: callable, scenarios: list[Scenario], params: Params
+                 ) -> tuple[dict, dict[int, dict]]:
+    """Metrics of one tracker (`track(scenario)` gives its updates) and each scenario's updates."""
     counts: list[RouteCounts] = []
+    scan_ospa, nees = [], []
     updates_by_scenario = {}
-    report = progress_logger(f"evaluate {run.name}")
+    report = progress_logger(f"evaluate {name}")
     elapsed = 0.0
+    confirmed = params.tracker.weight_confirmed
     for done, scenario in enumerate(scenarios, start=1):
         start = time.perf_counter()
-        updates = track_plots(scenario.features, scenario.plot_ids, run.method, run.window_m, models, params.tracker,
-                              seed=[params.tracker.seed, scenario.scenario_id], radar=params.radar)
+        updates = track(scenario)
         elapsed += time.perf_counter() - start
-        counts.append(route_counts(updates, scenario.is_target, scenario.truth, params.tracker.weight_confirmed))
+        counts.append(route_counts(updates, scenario.is_target, scenario.truth, confirmed))
+        scan_of_plot = dict(zip(scenario.plot_ids.tolist(), scenario.scans.tolist()))
+        scan_ospa.append(ospa.scan_ospa(
+            updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), confirmed,
+            scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
+            params.evaluate.ospa_order))
+        nees.append(confirmed_nees(updates, scenario.is_target, scenario.truth, confirmed))
         updates_by_scenario[scenario.scenario_id] = updates
         report(done, len(scenarios))
     plots = sum(len(s.features) for s in scenarios)
-    return summarise(counts), updates_by_scenario, plots / elapsed if elapsed else float("nan")
+    all_nees = np.concatenate(nees)
+    metrics = {**summarise(counts), "OSPA": float(np.concatenate(scan_ospa).mean()),
+               "ANEES": float(all_nees.mean()) if len(all_nees) and np.isfinite(all_nees).all() else float("nan"),
+               "plots_per_second": plots / elapsed if elapsed else float("nan")}
+    return metrics, updates_by_scenario
+
+
+def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
+    """Every run of params, and the references, as name -> track(scenario)."""
+    def method_run(run: EvaluationRun) -> callable:
+        return lambda scenario: track_plots(scenario.features, scenario.plot_ids, run.method, run.window_m, models,
+                                            params.tracker, seed=[params.tracker.seed, scenario.scenario_id],
+                                            radar=params.radar)
+
+    def reference_run(method: str) -> callable:
+        return lambda scenario: reference_updates(scenario, method, models, params)
+
+    return {**{run.name: method_run(run) for run in params.evaluate.runs},
+            **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
 
 
 def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, reports_dir: Path) -> None:
@@ -101,22 +163,23 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
     split = params.evaluate.split
     plots = io.read_parquet(simulated_dir / split / "plots.parquet", simulate.PLOT_SCHEMA)
     route_table = io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA)
-    models = load_tracker_models(models_dir, params, any(run.method == "ae" for run in params.evaluate.runs))
-    scenarios = load_scenarios(plots, route_table)
+    truth_table = io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA)
+    models = load_tracker_models(models_dir, params, [run.method for run in params.evaluate.runs]
+                                 + [ORACLE for method in params.evaluate.references if method == ORACLE])
+    scenarios = load_scenarios(plots, route_table, truth_table)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment)
 
-    results, speed, examples = {}, {}, {}
-    for run in params.evaluate.runs:
-        results[run.name], updates, speed[run.name] = evaluate_run(run, scenarios, models, params)
-        log.info("evaluate %s: %s, %.0f plots/s", run.name,
-                 ", ".join(f"{k} {v:.4g}" for k, v in results[run.name].items()), speed[run.name])
-        if run.name == params.evaluate.example_run:
+    results, examples = {}, {}
+    for name, track in tracker_runs(params, models).items():
+        results[name], updates = evaluate_run(name, track, scenarios, params)
+        log.info("evaluate %s: %s", name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
+        if name == params.evaluate.example_run:
             examples = updates
     first = results[params.evaluate.runs[0].name]
     metrics = {"runs": results, "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
-    table = markdown_table(results)
+    table = markdown_table({name: values for name, values in results.items() if not name.endswith("_reference")})
     pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples[scenario.scenario_id], params,
                                                               params.evaluate.example_run)
                 for scenario in scenarios[:params.evaluate.example_scenarios]}
@@ -136,7 +199,6 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
                             **{f"tracker.{k}": v for k, v in vars(params.tracker).items()}})
     logger.log_metrics({f"{name}.{metric}": float(value) for name, values in results.items()
                         for metric, value in values.items() if np.isfinite(value)})
-    logger.log_metrics({f"{name}.plots_per_second": value for name, value in speed.items()})
     for artifact in [reports_dir / "tracker_metrics.json", reports_dir / "tracker_tables.md",
                      *sorted((reports_dir / "tracks").glob("*.png"))]:
         logger.experiment.log_artifact(logger.run_id, str(artifact))

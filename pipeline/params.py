@@ -173,9 +173,7 @@ class TrackerParams:
     mia_k_padded_base: float
     seed: int
     inference: str
-    kalman_acceleration_std_mps2: float
     kalman_gate_probability: float
-    kalman_max_speed_mps: float
 
 
 @dataclass(frozen=True)
@@ -192,8 +190,25 @@ class EvaluationRun:
 class Evaluate:
     split: str
     runs: tuple[EvaluationRun, ...]
+    references: tuple[str, ...]
+    ospa_cutoff_m: float
+    ospa_order: float
     example_scenarios: int
     example_run: str
+
+
+@dataclass(frozen=True)
+class Kalman:
+    split: str
+    cost: str
+    burn_in_updates: int
+    restart_gap_s: float
+    max_iterations: int
+    velocity_std_mps: float
+    acceleration_std_mps2: float
+    noise_std: Mapping[str, tuple[float, ...]]   # start values by filter kind
+    imm_switch_probability: float
+    imm_initial_cv_probability: float
 
 
 @dataclass(frozen=True)
@@ -206,6 +221,7 @@ class Params:
     windows: Windows
     training: Training
     tracker: TrackerParams
+    kalman: Kalman
     evaluate: Evaluate
 
 
@@ -453,7 +469,11 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
     )
 
 
-ASSOCIATION_METHODS = ("radius", "via", "mia", "ae", "kalman_cv")
+CLASSICAL_METHODS = {"kalman_cv": "cv", "kalman_ca": "ca", "imm": "imm"}  # method -> tuned filter kind
+GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
+ASSOCIATION_METHODS = ("radius", "via", "mia", "ae", *CLASSICAL_METHODS,
+                       *(method + GLOBAL_SUFFIX for method in CLASSICAL_METHODS))
+REFERENCES = ("plots", "oracle")  # raw target plots; true association with the tuned IMM
 
 
 def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
@@ -474,9 +494,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
         mia_k_padded_base=_positive(tree, "mia_k_padded_base", p),
         seed=_integer(tree, "seed", p),
         inference=_text(tree, "inference", p),
-        kalman_acceleration_std_mps2=_positive(tree, "kalman_acceleration_std_mps2", p),
         kalman_gate_probability=_number(tree, "kalman_gate_probability", p, 0.0, 1.0, low_open=True),
-        kalman_max_speed_mps=_positive(tree, "kalman_max_speed_mps", p),
     )
     if tracker.kalman_gate_probability >= 1.0:
         raise ParamError(f"{p}.kalman_gate_probability = {tracker.kalman_gate_probability}: must be below 1")
@@ -511,8 +529,40 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
     example_run = _text(tree, "example_run", p)
     if example_run not in names:
         raise ParamError(f"{p}.example_run = {example_run!r}: not one of the runs {names}")
-    return Evaluate(split=split, runs=tuple(runs), example_scenarios=_integer(tree, "example_scenarios", p),
-                    example_run=example_run)
+    references = _get(tree, "references", p)
+    if not isinstance(references, list) or any(r not in REFERENCES for r in references):
+        raise ParamError(f"{p}.references = {references!r}: must list some of {REFERENCES}")
+    return Evaluate(split=split, runs=tuple(runs), references=tuple(references),
+                    ospa_cutoff_m=_positive(tree, "ospa_cutoff_m", p), ospa_order=_positive(tree, "ospa_order", p),
+                    example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run)
+
+
+TUNING_COSTS = ("rmse", "nees")
+
+
+def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
+    p = "kalman"
+    split = _text(tree, "split", p)
+    if split not in [s.name for s in splits]:
+        raise ParamError(f"{p}.split = {split!r}: no such split in routes.splits")
+    cost = _text(tree, "cost", p)
+    if cost not in TUNING_COSTS:
+        raise ParamError(f"{p}.cost = {cost!r}: must be one of {TUNING_COSTS}")
+    noise = {}
+    for kind, count in (("cv", 1), ("ca", 1), ("imm", 2)):
+        values = _get(tree, f"{kind}_noise_std", p)
+        if (not isinstance(values, list) or len(values) != count
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in values)):
+            raise ParamError(f"{p}.{kind}_noise_std = {values!r}: must list {count} positive number(s)")
+        noise[kind] = tuple(float(v) for v in values)
+    return Kalman(
+        split=split, cost=cost, burn_in_updates=_integer(tree, "burn_in_updates", p),
+        restart_gap_s=_positive(tree, "restart_gap_s", p), max_iterations=_integer(tree, "max_iterations", p, 1),
+        velocity_std_mps=_positive(tree, "velocity_std_mps", p),
+        acceleration_std_mps2=_positive(tree, "acceleration_std_mps2", p), noise_std=noise,
+        imm_switch_probability=_number(tree, "imm_switch_probability", p, 0.0, 1.0, low_open=True),
+        imm_initial_cv_probability=_number(tree, "imm_initial_cv_probability", p, 0.0, 1.0),
+    )
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:
@@ -535,6 +585,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         windows=windows,
         training=_training(_get(tree, "training", "params"), windows),
         tracker=_tracker(_get(tree, "tracker", "params"), windows),
+        kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
     )
 

@@ -88,7 +88,7 @@ def track_recording(plots: pa.Table, radars: pa.Table, method: str, window_m: fl
     if unknown:
         raise io.InputError(f"{source}: plots from radar id {unknown[0]} ({len(unknown)} unknown in all), which "
                             f"the radar description does not list (it has {sorted(radar_rows)})")
-    models = load_tracker_models(models_dir, params, method == "ae")
+    models = load_tracker_models(models_dir, params, [method])
     scenario_ids = plots.column("scenario_id").fill_null(-1).to_numpy()
     parts = []
     for radar_id in np.unique(radar_ids):

@@ -71,6 +71,24 @@ def route_counts(updates: dict[str, np.ndarray], is_target_plot: dict[int, bool]
         confirmed_tracks=len(tracks), confirmed_track_lengths=lengths.tolist())
 
 
+def confirmed_nees(updates: dict[str, np.ndarray], is_target_plot: dict[int, bool], truth_at: callable,
+                   confirmed_weight: float) -> np.ndarray:
+    """Position NEES, (estimate - truth)' P^-1 (estimate - truth), of each confirmed-track update
+    with a target plot: 3 on average for a tracker whose covariance tells the truth (NaN for
+    trackers that give no covariance)."""
+    associated = updates["association"] != "start"
+    confirmed = associated & (updates["weight"] >= confirmed_weight - 1e-9)
+    confirmed &= np.array([is_target_plot[int(p)] for p in updates["plot_id"]], dtype=bool)
+    if not confirmed.any():
+        return np.empty(0)
+    states = np.column_stack([updates[f"{a}_ecef_m"] for a in "xyz"])[confirmed]
+    error = states - truth_at(updates["time_unix_s"][confirmed])
+    covariance = updates["position_covariance"][confirmed]
+    if np.isnan(covariance).any():
+        return np.full(len(error), np.nan)
+    return np.einsum("ni,ni->n", error, np.linalg.solve(covariance, error[:, :, None])[:, :, 0])
+
+
 def summarise(routes: list[RouteCounts]) -> dict[str, float]:
     """The thesis's metrics over all routes."""
     nopa = sum(r.confirmed_associations for r in routes)
@@ -104,7 +122,9 @@ def markdown_table(results: dict[str, dict]) -> str:
             out.append("n/a" if value is None or (isinstance(value, float) and np.isnan(value)) else form.format(value))
         return " | ".join(out)
 
-    labels = {"radius": "radius", "via": "VIA", "mia": "MIA", "ae": "AE", "kalman_cv": "Kalman CV (classical)"}
+    labels = {"radius": "radius", "via": "VIA", "mia": "MIA", "ae": "AE", "kalman_cv": "Kalman CV",
+              "kalman_ca": "Kalman CA", "imm": "IMM", "kalman_cv_gnn": "Kalman CV + GNN",
+              "kalman_ca_gnn": "Kalman CA + GNN", "imm_gnn": "IMM + GNN"}
     order = list(labels)
 
     def position(name: str) -> tuple[int, float]:

@@ -25,7 +25,7 @@ from pipeline.track_command import run_track, track_recording
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 
-METHODS = ("radius", "via", "mia", "ae", "kalman_cv")
+METHODS = ("radius", "via", "mia", "ae", "kalman_cv", "kalman_ca", "imm", "imm_gnn")
 WINDOW_M = 4000.0
 
 # Third-party deprecation notices (Lightning's pytree use), not ours.
@@ -108,7 +108,7 @@ def test_straight_target_without_clutter_gives_one_confirmed_track_holding_every
     assert updates["weight"][:4].tolist() == pytest.approx([0.4, 0.6, 0.8, 1.0])
     assert [status(w, params.tracker) for w in updates["weight"][:4]] == [
         "tentative", "tentative", "candidate", "confirmed"]
-    young = {"radius": 39, "via": 1, "mia": 1, "ae": 4, "kalman_cv": 1}[method]
+    young = {"radius": 39, "via": 1, "mia": 1, "ae": 4}.get(method, 1)
     assert updates["association"].tolist() == ["start"] + ["radius"] * young + [method] * (39 - young)
     assert np.isnan(updates["association_error"][0])
     assert ((updates["association_error"][1:] >= 0.0) & (updates["association_error"][1:] < 1.0)).all()
@@ -147,7 +147,7 @@ def test_clutter_alone_never_confirms_a_track(method, models, params):
     assert "confirmed" not in {status(w, params.tracker) for w in updates["weight"]}
 
 
-@pytest.mark.parametrize("method", ("via", "mia", "ae", "kalman_cv"))
+@pytest.mark.parametrize("method", ("via", "mia", "ae", "kalman_cv", "imm", "imm_gnn"))
 def test_target_in_clutter_keeps_its_own_plots(method, models, params):
     """A straight target among 8 clutter plots per scan: its plots form one track, confirmed from its 4th
     plot on, and no clutter plot is associated to a confirmed track."""
@@ -424,7 +424,7 @@ def test_models_built_with_another_scaler_are_refused(recording, models_dir, tmp
     model file and 'scaler', before tracking, and no output."""
     other = tf.make_params({"windows.position_max_diff_m": 500.0})
     with pytest.raises(io.InputError, match="scaler") as error:
-        load_tracker_models(models_dir, other, need_autoencoder=False)
+        load_tracker_models(models_dir, other, ["via"])
     assert str(models_dir / "predictor.pt") in str(error.value)
     plots_path, radar_path = write_recording(tmp_path, *recording)
     out = tmp_path / "tracks.parquet"
@@ -467,7 +467,7 @@ def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params)
     from pipeline.tracker.tracks import Track
 
     features = tf.straight_features(params.radar, (60e3, -40e3, 9000.0), (200.0, 50.0, 0.0), 11)
-    estimator = KalmanEstimator(params.radar, params.tracker)
+    estimator = KalmanEstimator(params.radar, tf.untuned_filters(params)["cv"])
     track = Track(0, [features[0]], [features[0]], [0])
     for plot in features[1:10]:
         track.states.append(estimator.update(track, plot, plot))

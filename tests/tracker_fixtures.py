@@ -25,7 +25,9 @@ from pipeline import geodesy, materials, model_eval
 from pipeline.model_eval import output_scaler
 from pipeline.model_store import LoadedModel, load_model, save_model
 from pipeline.params import Params, Radar, parse_params
-from pipeline.tracker.run import Models
+from pipeline.classical_filters import KINDS, FilterSettings
+from pipeline.tracker.models import Models
+from pipeline.tune_stage import start_settings
 from pipeline.train_stage import network_config
 from pipeline.training import TrainingConfig, train
 from tests.project import default_params_tree
@@ -241,9 +243,14 @@ def trained_models(tmp_path_factory, frame: str = "ecef") -> Path:
     return _TRAINED[frame]
 
 
+def untuned_filters(params: Params) -> dict[str, FilterSettings]:
+    """The classical filters at params' start values (tuning is tested on its own)."""
+    return {kind: start_settings(kind, params) for kind in KINDS}
+
+
 def load_models(folder: Path) -> Models:
     return Models(load_model(folder / "predictor.pt", "predictor"), load_model(folder / "filter.pt", "filter"),
-                  load_model(folder / "autoencoder.pt", "autoencoder"))
+                  load_model(folder / "autoencoder.pt", "autoencoder"), filters=untuned_filters(make_params()))
 
 
 # ----------------------------------------------------------------------------- recordings for `track`

@@ -1,0 +1,148 @@
+"""The classical filters of the tracker, built from filterpy: a CV or CA Kalman filter, or an IMM.
+
+`FilterSettings` is everything that defines one (its motion models, their process noise and
+the spread of a new track's velocity); the tuner chooses these values and saves them in
+`models/kalman_tuned.json`, the tracker loads them. Each track owns one filter object, started
+at its first plot; `advance` steps it to a plot's time and `predicted_gaussian` gives the
+prediction at any time without changing it (for gating several candidate plots).
+
+The IMM is filterpy's `IMMEstimator` over a constant-velocity and a constant-acceleration
+model in one 9-entry state (see `pipeline.motion_models`). Its prediction for gating mixes the
+models with the predicted mode probabilities (c-bar), which is the IMM's own predicted
+density; filterpy's `x_prior` weights them with the last posterior ones instead.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from filterpy.kalman import IMMEstimator, KalmanFilter
+
+from pipeline import motion_models
+
+KINDS = ("cv", "ca", "imm")
+MODELS = {"cv": ("cv",), "ca": ("ca",), "imm": ("cv9", "ca")}
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """One classical filter. `noise_std` has one entry per motion model of the kind
+    (cv: acceleration m/s^2; ca: acceleration increments m/s^3; imm: both, in that order)."""
+
+    kind: str
+    noise_std: tuple[float, ...]
+    velocity_std_mps: float          # spread of a new track's unknown velocity
+    acceleration_std_mps2: float     # spread of a new track's unknown acceleration (ca, imm)
+    switch_probability: float        # imm: probability of changing model between two updates
+    initial_cv_probability: float    # imm: probability of the CV model for a new track
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"filter kind {self.kind!r}: must be one of {KINDS}")
+        if len(self.noise_std) != len(MODELS[self.kind]):
+            raise ValueError(f"{self.kind}: needs {len(MODELS[self.kind])} process-noise values, got {self.noise_std}")
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        return MODELS[self.kind]
+
+    @property
+    def measured(self) -> list[int]:
+        return motion_models.measured_indices(self.models[0])
+
+    def transition_probabilities(self) -> np.ndarray:
+        switch = self.switch_probability
+        return np.array([[1.0 - switch, switch], [switch, 1.0 - switch]])
+
+    def initial_probabilities(self) -> np.ndarray:
+        return np.array([self.initial_cv_probability, 1.0 - self.initial_cv_probability])
+
+    def with_values(self, noise_std: tuple[float, ...], velocity_std_mps: float) -> "FilterSettings":
+        return FilterSettings(self.kind, tuple(float(v) for v in noise_std), float(velocity_std_mps),
+                              self.acceleration_std_mps2, self.switch_probability, self.initial_cv_probability)
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "noise_std": list(self.noise_std)}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "FilterSettings":
+        return cls(**{**values, "noise_std": tuple(values["noise_std"])})
+
+
+def load_settings(path) -> dict[str, FilterSettings]:
+    """The tuned filters saved by the tune stage, by kind."""
+    try:
+        saved = json.loads(open(path).read())
+        return {kind: FilterSettings.from_dict(values) for kind, values in saved["filters"].items()}
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no tuned Kalman filters; run `dvc repro tune_kalman`") from None
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: not a tuned-filter file ({error})") from None
+
+
+def _kalman(model: str, state: np.ndarray, covariance: np.ndarray) -> KalmanFilter:
+    kf = KalmanFilter(dim_x=motion_models.state_size(model), dim_z=3)
+    kf.x, kf.P, kf.H = state.copy(), covariance.copy(), motion_models.measurement_matrix(model)
+    return kf
+
+
+def start_filter(settings: FilterSettings, position: np.ndarray, covariance: np.ndarray
+                 ) -> KalmanFilter | IMMEstimator:
+    """A filter started at one measurement."""
+    filters = [_kalman(model, *motion_models.initial_state(model, position, covariance, settings.velocity_std_mps,
+                                                            settings.acceleration_std_mps2))
+               for model in settings.models]
+    if settings.kind != "imm":
+        return filters[0]
+    return IMMEstimator(filters, settings.initial_probabilities(), settings.transition_probabilities())
+
+
+def _sub_filters(estimator: KalmanFilter | IMMEstimator) -> list[KalmanFilter]:
+    return estimator.filters if isinstance(estimator, IMMEstimator) else [estimator]
+
+
+def advance(estimator: KalmanFilter | IMMEstimator, settings: FilterSettings, dt: float) -> None:
+    """Predict the filter dt seconds ahead (in place)."""
+    for kf, model, noise in zip(_sub_filters(estimator), settings.models, settings.noise_std):
+        kf.F = motion_models.transition(model, dt)
+        kf.Q = motion_models.process_noise(model, dt, noise)
+    estimator.predict()
+
+
+def update(estimator: KalmanFilter | IMMEstimator, position: np.ndarray, covariance: np.ndarray) -> None:
+    for kf in _sub_filters(estimator):
+        kf.R = covariance
+    estimator.update(position)
+
+
+def predicted_gaussian(estimator: KalmanFilter | IMMEstimator, settings: FilterSettings, dt: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The predicted state and covariance dt seconds ahead, the filter unchanged."""
+    filters = _sub_filters(estimator)
+    if isinstance(estimator, IMMEstimator):
+        weights = estimator.omega  # mixing weights: omega[i, j] of model i in model j's start
+        means = [sum(weights[i, j] * filters[i].x for i in range(len(filters))) for j in range(len(filters))]
+        spreads = [sum(weights[i, j] * (filters[i].P + np.outer(filters[i].x - means[j], filters[i].x - means[j]))
+                       for i in range(len(filters))) for j in range(len(filters))]
+        probabilities = estimator.cbar
+    else:
+        means, spreads, probabilities = [filters[0].x], [filters[0].P], np.ones(1)
+    states, covariances = [], []
+    for mean, spread, model, noise in zip(means, spreads, settings.models, settings.noise_std):
+        transition = motion_models.transition(model, dt)
+        states.append(transition @ mean)
+        covariances.append(transition @ spread @ transition.T + motion_models.process_noise(model, dt, noise))
+    state = sum(p * s for p, s in zip(probabilities, states))
+    covariance = sum(p * (c + np.outer(s - state, s - state)) for p, s, c in zip(probabilities, states, covariances))
+    return state, covariance
+
+
+def posterior(estimator: KalmanFilter | IMMEstimator) -> tuple[np.ndarray, np.ndarray]:
+    return estimator.x, estimator.P
+
+
+def model_probabilities(estimator: KalmanFilter | IMMEstimator) -> np.ndarray:
+    """The IMM's mode probabilities (CV, CA); [1] for a single model."""
+    return estimator.mu.copy() if isinstance(estimator, IMMEstimator) else np.ones(1)

@@ -1,0 +1,186 @@
+"""Stage `compare`: one report of every tracker, neural and classical, and of the networks
+against the tuned Kalman filters on the hold-out windows.
+
+Trackers: the evaluate stage's metrics (`reports/tracker_metrics.json`), one row each, best
+first by OSPA. Hold-out: the windows the networks were scored on (`reports/models.json`),
+run through each tuned filter (`models/kalman_tuned.json`):
+- filter: the estimate of each window's last plot, the filters fed the window's plots with
+  their converted-measurement covariance;
+- predictor: the next true state, the filters fed the window's true states (measurement
+  sigma `training.kalman_truth_sigma_m`), then predicted to the next state's time.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from pipeline import baselines, batch_filters, io, materials, model_eval, windows
+from pipeline.classical_filters import FilterSettings, load_settings
+from pipeline.params import Params
+from pipeline.scaling import STATE_FEATURES
+
+TRACKER_METRICS = ("OSPA", "MAE", "ROCA", "NOMT", "NOFPA", "ANEES", "plots_per_second")
+FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
+
+
+def _filtered(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray
+              ) -> batch_filters.BatchState:
+    valid = np.ones(times.shape, dtype=bool)
+    restart = np.zeros(times.shape, dtype=bool)
+    restart[:, 0] = True
+    return batch_filters.filter_sequences(settings, times, positions, covariances, valid, restart)
+
+
+def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSettings], params: Params) -> dict:
+    """Mean position error (m) of each tuned filter on the networks' hold-out windows."""
+    length = params.windows.filter_length
+    starts = windows.window_starts(holdout.segment_id, length)
+    raw = windows.gather(holdout.plot_features(), starts, length)
+    truth = windows.gather(holdout.true_features(), starts, length)[:, -1, 1:4]
+    positions = raw[:, :, 1:4]
+    covariances = baselines.measurement_covariance(positions.reshape(-1, 3), params.radar).reshape(
+        *positions.shape[:2], 3, 3)
+    filtered = {kind: np.linalg.norm(_filtered(settings, raw[:, :, 0], positions, covariances)[0][:, -1] - truth,
+                                     axis=1).mean() for kind, settings in filters.items()}
+
+    inputs = params.windows.predictor_inputs
+    starts = windows.window_starts(holdout.segment_id, inputs + 1)
+    states = windows.state_features(holdout.true_features(), starts, inputs + 1)
+    position = [STATE_FEATURES.index(a) for a in "xyz"]
+    given, target = states[:, :inputs], states[:, -1]
+    sigma = np.broadcast_to(params.training.kalman_truth_sigma_m ** 2 * np.eye(3), (*given.shape[:2], 3, 3))
+    predicted = {}
+    for kind, settings in filters.items():
+        _, _, state = _filtered(settings, given[:, :, 0], given[:, :, position], sigma)
+        forecast, _ = batch_filters.predict_positions(settings, state, target[:, 0] - given[:, -1, 0])
+        predicted[kind] = np.linalg.norm(forecast - target[:, position], axis=1).mean()
+    return {"filter_windows": int(len(raw)), "predictor_windows": int(len(given)),
+            "filter_error_m": {kind: float(v) for kind, v in filtered.items()},
+            "prediction_error_m": {kind: float(v) for kind, v in predicted.items()}}
+
+
+def _cell(value: float | None, form: str) -> str:
+    return "n/a" if value is None or not np.isfinite(value) else form.format(value)
+
+
+def tracker_table(runs: dict[str, dict]) -> str:
+    forms = {"OSPA": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
+             "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
+    header = ["tracker", "OSPA (m)", "MAE (m)", "ROCA", "NOMT", "NOFPA", "ANEES (3 = consistent)", "plots/s"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf):
+        values = runs[name]
+        lines.append(f"| {name} | " + " | ".join(_cell(values.get(m), forms[m]) for m in TRACKER_METRICS) + " |")
+    return "\n".join(lines)
+
+
+def holdout_table(networks: dict, holdout: dict) -> str:
+    lines = ["| estimator | filter: error of the last plot's estimate (m) | predictor: error of the next state (m) |",
+             "|---|---|---|",
+             f"| raw plot | {networks['filter']['raw_plot_error_m']:.1f} | |",
+             f"| linear extrapolation | | {networks['predictor']['linear_extrapolation_error_m']:.1f} |",
+             f"| networks (filter, predictor) | {networks['filter']['filter_error_m']:.1f} | "
+             f"{networks['predictor']['predictor_error_m']:.1f} |"]
+    for kind, label in FILTER_LABELS.items():
+        if kind in holdout["filter_error_m"]:
+            lines.append(f"| {label}, tuned | {holdout['filter_error_m'][kind]:.1f} | "
+                         f"{holdout['prediction_error_m'][kind]:.1f} |")
+    return "\n".join(lines)
+
+
+def tuning_table(tuning: dict) -> str:
+    lines = [f"| filter | process noise | velocity spread (m/s) | {tuning['cost']} before | after | RMSE (m) | "
+             "raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for kind, values in tuning["filters"].items():
+        after = values["after"]
+        lines.append(
+            f"| {FILTER_LABELS[kind]} | {', '.join(f'{v:.3g}' for v in values['noise_std'])} | "
+            f"{values['velocity_std_mps']:.0f} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
+            f"{after['rmse_m']:.1f} | {after['plot_rmse_m']:.1f} | {after['anees']:.3f} | "
+            f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} |")
+    return "\n".join(lines)
+
+
+def verdict(runs: dict[str, dict], networks: dict, holdout: dict) -> list[str]:
+    """Plain sentences on who wins what, from the numbers."""
+    trackers = {name: values for name, values in runs.items() if not name.endswith("_reference")}
+    neural = {n: v for n, v in trackers.items() if n.split("_")[0] in ("via", "mia", "ae", "radius")}
+    classical = {n: v for n, v in trackers.items() if n not in neural}
+    sentences = []
+
+    def best(group: dict, metric: str, low: bool = True) -> str:
+        return min(group, key=lambda n: group[n][metric] if low else -group[n][metric])
+
+    if neural and classical:
+        for metric, low, what in (("OSPA", True, "OSPA"), ("MAE", True, "position error (MAE)"),
+                                  ("ROCA", False, "share of target plots in confirmed tracks (ROCA)")):
+            n, c = best(neural, metric, low), best(classical, metric, low)
+            winner = c if (classical[c][metric] < neural[n][metric]) == low else n
+            sentences.append(f"- {what}: best neural {n} {neural[n][metric]:.4g}, best classical {c} "
+                             f"{classical[c][metric]:.4g}; **{winner}** wins.")
+    if "oracle_reference" in runs and trackers:
+        top = best(trackers, "OSPA")
+        sentences.append(f"- True association (oracle, tuned IMM) reaches OSPA {runs['oracle_reference']['OSPA']:.4g} "
+                         f"and MAE {runs['oracle_reference']['MAE']:.4g} m against the best tracker's "
+                         f"{trackers[top]['OSPA']:.4g} and {trackers[top]['MAE']:.4g} m ({top}): the gap is what "
+                         "association costs.")
+    if holdout["filter_error_m"]:
+        kind = min(holdout["filter_error_m"], key=holdout["filter_error_m"].get)
+        sentences.append(f"- Hold-out filtering: the filter network {networks['filter']['filter_error_m']:.1f} m, the "
+                         f"best tuned filter ({FILTER_LABELS[kind]}) {holdout['filter_error_m'][kind]:.1f} m.")
+        kind = min(holdout["prediction_error_m"], key=holdout["prediction_error_m"].get)
+        sentences.append(f"- Hold-out prediction: the predictor network {networks['predictor']['predictor_error_m']:.1f} "
+                         f"m, the best tuned filter ({FILTER_LABELS[kind]}) "
+                         f"{holdout['prediction_error_m'][kind]:.1f} m.")
+    return sentences
+
+
+def _read_json(path: Path, stage: str) -> dict:
+    if not path.is_file():
+        raise io.InputError(f"{path}: file not found (run `dvc repro {stage}`)")
+    return json.loads(path.read_text())
+
+
+def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
+    tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
+    networks = _read_json(reports_dir / "models.json", "models_report")
+    tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
+    try:
+        filters = load_settings(models_dir / "kalman_tuned.json")
+    except (FileNotFoundError, ValueError) as error:
+        raise io.InputError(str(error)) from None
+    holdout_path = windows_dir / "holdout.parquet"
+    holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA))
+    held = holdout_comparison(holdout, filters, params)
+    for kind, key in (("filter", "filter_windows"), ("predictor", "predictor_windows")):
+        if networks[kind]["holdout_windows"] != held[key]:
+            raise io.InputError(f"{holdout_path}: {held[key]} {kind} windows, but reports/models.json scored the "
+                                f"{kind} network on {networks[kind]['holdout_windows']}; rerun the train stages")
+    runs = tracker["runs"]
+    comparison = {"trackers": {name: {m: values.get(m) for m in TRACKER_METRICS} for name, values in runs.items()},
+                  "holdout": {**held, "network_filter_error_m": networks["filter"]["filter_error_m"],
+                              "network_prediction_error_m": networks["predictor"]["predictor_error_m"]},
+                  "tuning": {kind: {"cost_before": v["cost_before"], "cost_after": v["cost_after"]}
+                             for kind, v in tuning["filters"].items()}}
+    text = "\n\n".join([
+        f"# Neural and classical trackers on the same {params.evaluate.split} scenarios",
+        "Generated by `dvc repro compare` (`python -m pipeline compare`) from `reports/tracker_metrics.json`, "
+        "`reports/models.json` and `reports/kalman_tuning.json`; every number comes from `dvc repro`.",
+        "## Who wins", "\n".join(verdict(runs, networks, held)),
+        f"## Trackers ({len(runs)} runs, best OSPA first)",
+        f"Same plots, track management and metrics for all. OSPA: cutoff {params.evaluate.ospa_cutoff_m:.0f} m, "
+        f"order {params.evaluate.ospa_order:g}, mean over scans (see `pipeline/ospa.py`). ANEES only for trackers "
+        "with a covariance. `plots_reference`: the raw target plots with the true association; "
+        "`oracle_reference`: the tuned IMM with the true association. plots/s: tracking alone, one core, "
+        "this machine.",
+        tracker_table(runs),
+        "## Networks against the tuned filters on the hold-out windows", holdout_table(networks, held),
+        f"## Tuning (on the {tuning['split']} split's target plots, cost {tuning['cost']})", tuning_table(tuning),
+    ]) + "\n"
+    io.write_json(comparison, reports_dir / "comparison.json")
+    io.write_text(text, reports_dir / "comparison.md")

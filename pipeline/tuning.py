@@ -1,0 +1,189 @@
+"""Tuning of the classical filters on the training routes, as a filter tuner does.
+
+The material is each training route's target plots in time order with the true position
+at each plot (only the target's plots: tuning is about estimation, association comes
+later). Every filter runs over every route at once (`pipeline.batch_filters`); a gap
+longer than `restart_gap_s` restarts it, as the tracker would have deleted the silent track.
+
+The cost is computed from the filtered positions after `burn_in_updates` updates of each
+(re)start:
+- `rmse`: root-mean-square distance to the truth, metres;
+- `nees`: |ln(ANEES / 3)|, where ANEES is the mean normalised estimation error squared of the
+  position, which is 3 for a filter whose covariance tells the truth about its errors.
+
+Nelder-Mead (scipy.optimize) searches the logarithms of the process-noise values and of a
+new track's velocity spread, so they stay positive and are searched on a relative scale.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+from scipy import optimize
+from scipy.stats import chi2
+
+from pipeline import baselines, batch_filters
+from pipeline.classical_filters import FilterSettings
+from pipeline.params import Radar
+
+log = logging.getLogger("pipeline")
+
+COSTS = ("rmse", "nees")
+SIMPLEX_STEP = 0.7  # the first simplex spans a factor of two in each value (scipy's default, 5 %, of log 1 is 0)
+
+
+class TuningError(RuntimeError):
+    """Tuning did not give a usable filter; the message has the values it reached."""
+
+
+@dataclass(frozen=True)
+class Sequences:
+    """Measurement sequences packed into B rows of T plots (see `_packed`)."""
+
+    times: np.ndarray          # (B, T)
+    positions: np.ndarray      # (B, T, 3)
+    covariances: np.ndarray    # (B, T, 3, 3)
+    truth: np.ndarray          # (B, T, 3)
+    valid: np.ndarray          # (B, T)
+    restart: np.ndarray        # (B, T)
+    scored: np.ndarray         # (B, T): counted in the cost (valid and past the burn-in)
+
+
+def target_sequences(plots: pa.Table, radar: Radar, restart_gap_s: float, burn_in_updates: int) -> Sequences:
+    """Each route's target plots, with the truth and the converted-measurement covariance."""
+    target = plots.filter(plots.column("is_target"))
+    route = target.column("scenario_id").to_numpy()
+    time = target.column("time_unix_s").to_numpy()
+    order = np.lexsort((time, route))
+    route, time = route[order], time[order]
+    position = np.column_stack([target.column(f"{a}_ecef_m").to_numpy()[order] for a in "xyz"])
+    truth = np.column_stack([target.column(f"true_{a}_ecef_m").to_numpy()[order] for a in "xyz"])
+    if not len(time):
+        raise TuningError("no target plots to tune on")
+    gap = np.diff(time, prepend=-np.inf)
+    restart_at = np.concatenate([[True], route[1:] != route[:-1]]) | (gap > restart_gap_s)
+    index = np.arange(len(time))
+    since_restart = index - np.maximum.accumulate(np.where(restart_at, index, 0))
+    row, column = _packed(np.diff(np.flatnonzero(np.append(restart_at, True))))
+    B, T = row.max() + 1, column.max() + 1
+
+    def padded(values: np.ndarray, fill: float | bool) -> np.ndarray:
+        out = np.full((B, T, *values.shape[1:]), fill, dtype=values.dtype)
+        out[row, column] = values
+        return out
+
+    valid = padded(np.ones(len(time), bool), False)
+    covariance = np.where(valid[..., None, None], padded(baselines.measurement_covariance(position, radar), 0.0),
+                          np.eye(3))  # padding: any invertible covariance, never used
+    return Sequences(padded(time, 0.0), padded(position, 0.0), covariance, padded(truth, 0.0), valid,
+                     padded(restart_at, False),
+                     padded(since_restart >= burn_in_updates, False))
+
+
+def _packed(lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of every plot when the sequences (each starting with a restart) are packed
+    into as few rows as first-fit decreasing finds, each as long as the longest sequence: a
+    restart makes a sequence independent of what precedes it in its row, and the batch steps
+    column by column, so fewer, fuller rows are faster."""
+    capacity = int(lengths.max())
+    free: list[int] = []
+    placement = np.empty((len(lengths), 2), dtype=np.int64)
+    for sequence in np.argsort(-lengths, kind="stable"):
+        row = next((r for r, room in enumerate(free) if room >= lengths[sequence]), len(free))
+        if row == len(free):
+            free.append(capacity)
+        placement[sequence] = row, capacity - free[row]
+        free[row] -= lengths[sequence]
+    row = np.repeat(placement[:, 0], lengths)
+    column = np.repeat(placement[:, 1], lengths) + np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths,
+                                                                                      lengths)
+    return row, column
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """How one filter did over the material."""
+
+    rmse_m: float
+    plot_rmse_m: float    # the raw plots' error over the same samples, for scale
+    anees: float          # mean position NEES; 3 for a consistent filter
+    anees_bounds: tuple[float, float]   # its 95 % interval for this many samples if consistent
+    nees_in_interval: float  # share of single NEES values inside chi-square(3)'s 95 % interval (0.95 if consistent)
+    samples: int
+
+    def cost(self, kind: str) -> float:
+        return self.rmse_m if kind == "rmse" else abs(float(np.log(self.anees / 3.0)))
+
+    def to_dict(self) -> dict:
+        return {"rmse_m": self.rmse_m, "plot_rmse_m": self.plot_rmse_m, "anees": self.anees, "anees_bounds": list(self.anees_bounds),
+                "nees_in_95_interval": self.nees_in_interval, "samples": self.samples}
+
+
+def assess(settings: FilterSettings, material: Sequences) -> Assessment:
+    """Run the filter over every route and measure its error and consistency."""
+    estimates, covariances, _ = batch_filters.filter_sequences(settings, material.times, material.positions,
+                                                               material.covariances, material.valid,
+                                                               material.restart)
+    error = (estimates - material.truth)[material.scored]
+    spread = covariances[material.scored]
+    try:
+        np.linalg.cholesky(spread)
+    except np.linalg.LinAlgError:
+        raise TuningError(f"{settings.kind}: a position covariance is not positive definite with noise "
+                          f"{settings.noise_std} and velocity spread {settings.velocity_std_mps}") from None
+    nees = np.einsum("ni,ni->n", error, np.linalg.solve(spread, error[:, :, None])[:, :, 0])
+    samples = len(nees)
+    if not samples:
+        raise TuningError("no plots past the burn-in to tune on")
+    low, high = chi2.ppf([0.025, 0.975], df=3)
+    return Assessment(
+        rmse_m=float(np.sqrt((error ** 2).sum(axis=1).mean())),
+        plot_rmse_m=float(np.sqrt(((material.positions - material.truth)[material.scored] ** 2).sum(axis=1).mean())),
+        anees=float(nees.mean()),
+        anees_bounds=tuple(float(b) for b in chi2.ppf([0.025, 0.975], df=3 * samples) / samples),
+        nees_in_interval=float(((nees >= low) & (nees <= high)).mean()), samples=samples)
+
+
+def _settings_at(start: FilterSettings, logs: np.ndarray) -> FilterSettings:
+    values = np.exp(logs)
+    return start.with_values(tuple(values[:-1]), values[-1])
+
+
+def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: int
+         ) -> tuple[FilterSettings, Assessment, Assessment, int]:
+    """The tuned settings, the assessment before and after, and the cost evaluations used.
+
+    Raises TuningError, with the values reached, when the search does not converge or the
+    tuned filter is not usable."""
+    if cost not in COSTS:
+        raise ValueError(f"tuning cost {cost!r}: must be one of {COSTS}")
+    before = assess(start, material)
+    evaluations = 0
+
+    def objective(logs: np.ndarray) -> float:
+        nonlocal evaluations
+        evaluations += 1
+        try:
+            value = assess(_settings_at(start, logs), material).cost(cost)
+        except TuningError:
+            return np.inf
+        if evaluations % 10 == 0:
+            log.info("tune %s: %d evaluations, cost %.4g at %s", start.kind, evaluations, value,
+                     np.round(np.exp(logs), 3).tolist())
+        return value
+
+    initial = np.log([*start.noise_std, start.velocity_std_mps])
+    simplex = np.vstack([initial, initial + np.eye(len(initial)) * SIMPLEX_STEP])
+    result = optimize.minimize(objective, initial, method="Nelder-Mead",
+                               options={"maxiter": max_iterations, "xatol": 1e-3, "fatol": 1e-4,
+                                        "initial_simplex": simplex})
+    reached = _settings_at(start, result.x)
+    if not result.success or not np.isfinite(result.fun):
+        raise TuningError(f"{start.kind}: Nelder-Mead did not converge ({result.message}) after {result.nit} "
+                          f"iterations; reached cost {result.fun:.6g} with noise {reached.noise_std} and "
+                          f"velocity spread {reached.velocity_std_mps:.6g}; nothing saved")
+    after = assess(reached, material)
+    return reached, before, after, evaluations
