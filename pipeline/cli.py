@@ -12,6 +12,7 @@ from pipeline.io import InputError
 from pipeline.params import ASSOCIATION_METHODS, ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
+from pipeline.tuning import TuningError
 
 log = logging.getLogger("pipeline")
 
@@ -191,6 +192,6 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
     try:
         return args.handler(args) or 0
-    except (ParamError, InputError, RouteGenerationError, TrackingError) as error:
+    except (ParamError, InputError, RouteGenerationError, TrackingError, TuningError) as error:
         log.error("%s", error)
         return 2

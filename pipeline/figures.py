@@ -170,3 +170,20 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
     axis.legend(fontsize=8, loc="best")
     figure.tight_layout()
     return _png(figure)
+
+
+def comparison_picture(runs: dict[str, dict]) -> bytes:
+    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top."""
+    names = sorted(runs, key=lambda n: runs[n]["OSPA"], reverse=True)
+    figure, axes = plt.subplots(1, 3, figsize=(13, 0.4 * len(names) + 1.5), sharey=True)
+    for axis, (metric, label) in zip(axes, (("OSPA", "OSPA (m)"), ("MAE", "MAE of confirmed tracks (m)"),
+                                            ("ROCA", "target plots in confirmed tracks (ROCA)"))):
+        values = [runs[n][metric] if runs[n][metric] is not None else np.nan for n in names]
+        colours = ["tab:grey" if n.endswith("_reference") else "tab:blue" if n.split("_")[0] in
+                   ("via", "mia", "ae", "radius") else "tab:orange" for n in names]
+        axis.barh(names, values, color=colours)
+        axis.set_xlabel(label)
+        axis.grid(axis="x", alpha=0.3)
+    axes[0].set_title("blue: neural, orange: classical, grey: references", loc="left", fontsize=9)
+    figure.tight_layout()
+    return _png(figure)

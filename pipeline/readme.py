@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from pipeline import io
+from pipeline import compare_stage, io
 from pipeline.data_summary import THESIS_TEST_FALSE_PLOTS, THESIS_TEST_TARGET_PLOTS
 from pipeline.tracker_metrics import markdown_table
 
@@ -104,8 +104,18 @@ def models_table(summary: dict) -> str:
 
 def tracker_table(summary: dict) -> str:
     plots, thesis = summary["plots"], summary["thesis"]["plots"]
-    return (markdown_table(summary["runs"]) + f"\n\nTest data: {plots['target']:,} target plots and "
+    runs = {name: values for name, values in summary["runs"].items() if not name.endswith("_reference")}
+    return (markdown_table(runs) + f"\n\nTest data: {plots['target']:,} target plots and "
             f"{plots['false']:,} false plots (thesis: {thesis['target']:,} and {thesis['false']:,}).")
+
+
+def comparison_section(comparison: dict) -> str:
+    """Who wins, every tracker in one table, and the networks against the tuned filters."""
+    return "\n\n".join([
+        "\n".join(compare_stage.verdict(comparison["trackers"], comparison["holdout"])),
+        compare_stage.tracker_table(comparison["trackers"]),
+        "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
+        compare_stage.holdout_table(comparison["holdout"])])
 
 
 SECTIONS = (
@@ -113,6 +123,7 @@ SECTIONS = (
     ("windows.json", "Training windows", windows_table),
     ("models.json", "Networks on the hold-out", models_table),
     ("tracker_metrics.json", "Tracker on the test scenarios (thesis tables 5.1 and 5.2)", tracker_table),
+    ("comparison.json", "Neural against classical trackers", comparison_section),
 )
 
 

@@ -44,6 +44,7 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
         tuned[kind] = settings
         report["filters"][kind] = {
             "noise_std": list(settings.noise_std), "velocity_std_mps": settings.velocity_std_mps,
+            "at_search_bound": tuning.at_bounds(start_settings(kind, params), settings),
             "cost_before": before.cost(params.kalman.cost), "cost_after": after.cost(params.kalman.cost),
             "before": before.to_dict(), "after": after.to_dict(), "cost_evaluations": evaluations,
             "seconds": time.perf_counter() - start}

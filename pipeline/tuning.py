@@ -12,7 +12,11 @@ The cost is computed from the filtered positions after `burn_in_updates` updates
   position, which is 3 for a filter whose covariance tells the truth about its errors.
 
 Nelder-Mead (scipy.optimize) searches the logarithms of the process-noise values and of a
-new track's velocity spread, so they stay positive and are searched on a relative scale.
+new track's velocity spread, so they stay positive and are searched on a relative scale,
+within a factor of 1000 of the start values: a value that wants to go to zero (the IMM's CV
+model would like no noise at all) then converges at the bound instead of drifting forever,
+and the report says which values ended at a bound. The search stops when the values agree
+to 1 % and the cost to 1e-3 (metres, or the NEES cost's relative units).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ log = logging.getLogger("pipeline")
 
 COSTS = ("rmse", "nees")
 SIMPLEX_STEP = 0.7  # the first simplex spans a factor of two in each value (scipy's default, 5 %, of log 1 is 0)
+SEARCH_RANGE = np.log(1000.0)  # each value is searched within a factor of 1000 of its start value
 
 
 class TuningError(RuntimeError):
@@ -152,6 +157,14 @@ def _settings_at(start: FilterSettings, logs: np.ndarray) -> FilterSettings:
     return start.with_values(tuple(values[:-1]), values[-1])
 
 
+def at_bounds(start: FilterSettings, tuned: FilterSettings) -> list[str]:
+    """Which tuned values ended at the edge of the search range."""
+    names = [f"noise_std[{i}]" for i in range(len(start.noise_std))] + ["velocity_std_mps"]
+    ratio = np.abs(np.log(np.array([*tuned.noise_std, tuned.velocity_std_mps])
+                          / np.array([*start.noise_std, start.velocity_std_mps])))
+    return [name for name, r in zip(names, ratio) if r > SEARCH_RANGE - 1e-2]
+
+
 def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: int
          ) -> tuple[FilterSettings, Assessment, Assessment, int]:
     """The tuned settings, the assessment before and after, and the cost evaluations used.
@@ -177,8 +190,9 @@ def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: 
 
     initial = np.log([*start.noise_std, start.velocity_std_mps])
     simplex = np.vstack([initial, initial + np.eye(len(initial)) * SIMPLEX_STEP])
-    result = optimize.minimize(objective, initial, method="Nelder-Mead",
-                               options={"maxiter": max_iterations, "xatol": 1e-3, "fatol": 1e-4,
+    bounds = optimize.Bounds(initial - SEARCH_RANGE, initial + SEARCH_RANGE)
+    result = optimize.minimize(objective, initial, method="Nelder-Mead", bounds=bounds,
+                               options={"maxiter": max_iterations, "xatol": 1e-2, "fatol": 1e-3,
                                         "initial_simplex": simplex})
     reached = _settings_at(start, result.x)
     if not result.success or not np.isfinite(result.fun):

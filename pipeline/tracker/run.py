@@ -91,8 +91,7 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
     """
     torch.set_num_threads(1)  # batches of a few windows: threads only add contention
     estimator = make_estimator(method, models, radar)
-    gate, mature_from = make_gate(method.removesuffix(GLOBAL_SUFFIX) if method != ORACLE else "imm", window_m,
-                                  estimator, models, params, params.seed if seed is None else seed)
+    gate, mature_from = make_gate(method, window_m, estimator, models, params, params.seed if seed is None else seed)
     live = LiveTracks()
     rows: dict[str, list] = {name: [] for name in (*UPDATE_COLUMNS, "position_covariance")}
     unknown = np.full((3, 3), np.nan)
