@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 # DVC stages call `python`: make it the environment's.
 export PATH := $(abspath $(BIN)):$(PATH)
 
-.PHONY: env pipeline test
+.PHONY: env system-deps pipeline test
 
 $(BIN)/activate:
 	$(PYTHON) -m venv $(VENV)
@@ -19,8 +19,21 @@ $(VENV)/.installed: $(BIN)/activate pyproject.toml
 
 env: $(VENV)/.installed
 
+# Programs from Debian that the end-to-end tests drive: Chromium (tests/test_mlflow_ui.py) and
+# PostgreSQL (tests/test_mlflow_postgres.py). Installs only what is missing, with sudo unless root.
+SUDO := $(if $(filter 0,$(shell id -u)),,sudo)
+system-deps:
+	@missing=""; \
+	[ -x /usr/bin/chromium ] || missing="chromium"; \
+	command -v initdb >/dev/null || ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || missing="$$missing postgresql"; \
+	if [ -n "$$missing" ]; then \
+		echo "make system-deps: installing from Debian:$$missing"; \
+		$(SUDO) apt-get update -qq && \
+		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+
 pipeline: env
 	$(BIN)/dvc repro
 
-test: env
+test: env system-deps
 	$(BIN)/python -m pytest -n 2

@@ -1,8 +1,9 @@
-"""Shared fixtures: the default params tree, and small params built from it."""
+"""Shared fixtures: the default params tree, small params built from it, and a tiny pipeline run."""
 
 from __future__ import annotations
 
 import copy
+import fcntl
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -10,6 +11,7 @@ import pytest
 import yaml
 
 from pipeline.params import Params, parse_params
+from tests.servers import repro_tiny_pipeline
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
 _DEFAULT_TREE = yaml.safe_load(PARAMS_YAML.read_text())
@@ -39,3 +41,30 @@ def make_params() -> Callable[..., Params]:
         return parse_params(tree)
 
     return make
+
+
+@pytest.fixture(scope="session")
+def tiny_pipeline(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Path:
+    """A copy of the repository in which a tiny `dvc repro evaluate` ran, its MLflow runs in the
+    copy's `mlflow.db`; shared by the MLflow UI and team-server tests.
+
+    Minutes of work, so done once per test session. Under pytest-xdist each worker is a
+    session of its own: the first worker to ask makes it in the session's common folder,
+    under a file lock, and the others wait for it and reuse it.
+    """
+    if worker_id == "master":  # not distributed
+        return repro_tiny_pipeline(tmp_path_factory.mktemp("tiny-pipeline"))
+    common = tmp_path_factory.getbasetemp().parent
+    repository, failed = common / "tiny-pipeline", common / "tiny-pipeline.failed"
+    with (common / "tiny-pipeline.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if failed.exists():
+            pytest.fail("the tiny pipeline run failed in another pytest-xdist worker: see its error")
+        if not repository.exists():
+            repository.mkdir()
+            try:
+                repro_tiny_pipeline(repository)
+            except BaseException:
+                failed.touch()
+                raise
+    return repository

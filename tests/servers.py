@@ -1,0 +1,182 @@
+"""Servers that the end-to-end tests start on 127.0.0.1 (PostgreSQL, the MLflow tracking server),
+and the tiny pipeline run whose MLflow runs they serve.
+
+Each server is a context manager that waits until it answers and stops it on exit, so a
+failing test leaves no server behind. The programs come from Debian (`make system-deps`);
+a missing one fails the test with the command that installs it, never a skip, so CI cannot
+go green without the test having run.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from tests.project import copy_repository, environment, tiny_params_tree, write_params
+
+INSTALL_HINT = "run `make system-deps` (as root, or with sudo)"
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on now (the OS picks it), for a server started right after."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def dvc(repository: Path, *arguments: str, tracking_uri: str | None = None) -> str:
+    """`dvc <arguments>` in a copy of the repository; its output.
+
+    With `tracking_uri`, only the environment variable MLFLOW_TRACKING_URI points the stages
+    at it, as a team member would do; without, the variable is unset and the copy's params
+    (`sqlite:///mlflow.db`) decide.
+    """
+    env = environment()
+    env.pop("MLFLOW_TRACKING_URI", None)
+    if tracking_uri is not None:
+        env["MLFLOW_TRACKING_URI"] = tracking_uri
+    result = subprocess.run([sys.executable, "-m", "dvc", *arguments], cwd=repository, env=env,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, (f"dvc {' '.join(arguments)} failed:\n{result.stdout}\n"
+                                    f"{result.stderr[-5000:]}")
+    return result.stdout
+
+
+def repro_tiny_pipeline(destination: Path) -> Path:
+    """A fresh copy of the repository with tiny params, `dvc repro evaluate` run in it.
+
+    That runs every training stage and `evaluate`, each logging one MLflow run to the copy's
+    `mlflow.db`.
+    """
+    copy_repository(destination)
+    write_params(tiny_params_tree(), destination / "params.yaml")
+    dvc(destination, "repro", "evaluate")
+    return destination
+
+
+def _wait_until_answers(url: str, process: subprocess.Popen, log: Path, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            pytest.fail(f"the server exited with code {process.returncode} before answering {url}:\n"
+                        f"{log.read_text()[-5000:]}")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as response:
+                if response.status == 200:
+                    return
+        except (urllib.error.URLError, ConnectionError, TimeoutError):
+            pass
+        time.sleep(0.5)
+    pytest.fail(f"no answer from {url} within {timeout_s:.0f} s:\n{log.read_text()[-5000:]}")
+
+
+def _stop(process: subprocess.Popen) -> None:
+    """Stop the server and every process it started (its own session), politely first."""
+    if process.poll() is None:
+        os.killpg(process.pid, signal.SIGTERM)
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+
+
+@contextmanager
+def mlflow_server(backend_store_uri: str, directory: Path) -> Iterator[str]:
+    """`mlflow server` over a store, on a free port of 127.0.0.1; yields its URL.
+
+    Artifacts that clients upload go through the server (MLflow's default `--serve-artifacts`)
+    to `directory/artifacts`; the server's log is `directory/mlflow-server.log`. One worker,
+    and no job runner (it serves GenAI scorers, and would start seven more processes on a
+    2-core machine).
+    """
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    log = directory / "mlflow-server.log"
+    env = environment()
+    env.pop("MLFLOW_TRACKING_URI", None)
+    env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] = "false"
+    command = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", backend_store_uri,
+               "--artifacts-destination", str(directory / "artifacts"),
+               "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
+    with log.open("w") as output:
+        process = subprocess.Popen(command, cwd=directory, env=env, stdout=output, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+    try:
+        _wait_until_answers(f"{url}/health", process, log, timeout_s=120)
+        yield url
+    finally:
+        _stop(process)
+
+
+def postgres_programs() -> Path:
+    """The folder of PostgreSQL's server programs (initdb, pg_ctl, createdb).
+
+    Debian keeps them in /usr/lib/postgresql/<version>/bin, off PATH; PATH is tried first for
+    other systems.
+    """
+    on_path = shutil.which("initdb")
+    if on_path:
+        return Path(on_path).resolve().parent
+    versions = sorted(Path("/usr/lib/postgresql").glob("*/bin/initdb"), key=lambda p: int(p.parent.parent.name))
+    if not versions:
+        pytest.fail(f"PostgreSQL's initdb was not found (on PATH or in /usr/lib/postgresql/*/bin): {INSTALL_HINT}, "
+                    "or `apt-get install -y --no-install-recommends postgresql`")
+    return versions[-1].parent
+
+
+@contextmanager
+def postgres_database(name: str = "mlflow") -> Iterator[str]:
+    """A throw-away PostgreSQL server on a free port of 127.0.0.1 with one empty database;
+    yields its SQLAlchemy URI (`postgresql+psycopg://mlflow@127.0.0.1:<port>/<name>`).
+
+    PostgreSQL refuses to run as root, so under root (CI) the server runs as the `postgres`
+    user that Debian's package creates, in a data folder that user owns. The folder is in
+    /tmp, not pytest's tmp_path: pytest makes that private to root, where `postgres` could
+    not reach it. Only connections from 127.0.0.1 are accepted, without a password (trust),
+    and the Unix socket lives in the same folder.
+    """
+    programs = postgres_programs()
+    as_server_user: list[str] = []
+    directory = Path(tempfile.mkdtemp(prefix="mlflow-postgres-"))
+    if os.geteuid() == 0:
+        if shutil.which("runuser") is None:
+            pytest.fail("runuser (util-linux) is needed to run PostgreSQL as the postgres user")
+        as_server_user = ["runuser", "-u", "postgres", "--"]
+        try:
+            shutil.chown(directory, "postgres", "postgres")
+        except LookupError:
+            pytest.fail(f"running as root and there is no `postgres` user to run PostgreSQL as: {INSTALL_HINT}")
+    data, log, port = directory / "data", directory / "postgres.log", free_port()
+
+    def run(*command: str) -> None:
+        result = subprocess.run([*as_server_user, *command], capture_output=True, text=True)
+        if result.returncode != 0:
+            log_text = log.read_text() if log.is_file() else ""
+            pytest.fail(f"{' '.join(command)} failed:\n{result.stdout}\n{result.stderr}\n{log_text[-5000:]}")
+
+    try:
+        run(str(programs / "initdb"), "-D", str(data), "--username=mlflow", "--auth=trust", "--encoding=UTF8",
+            "--no-locale", "--no-sync")
+        run(str(programs / "pg_ctl"), "-D", str(data), "-l", str(log), "-w", "-t", "60",
+            "-o", f"-h 127.0.0.1 -p {port} -k {directory}", "start")
+        try:
+            run(str(programs / "createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", "mlflow", name)
+            yield f"postgresql+psycopg://mlflow@127.0.0.1:{port}/{name}"
+        finally:  # immediate: a throw-away database needs no shutdown checkpoint
+            run(str(programs / "pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop")
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
