@@ -193,10 +193,12 @@ def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
     """Share of scans at or below each OSPA, one line per tracker: where the mean hides
     whether a tracker is often slightly off or sometimes missing (OSPA at the cutoff)."""
     figure, axis = plt.subplots(figsize=(9, 5.5))
-    for name in sorted(per_scan, key=lambda n: per_scan[n].mean()):
+    colours = plt.get_cmap("tab20").colors
+    for index, name in enumerate(sorted(per_scan, key=lambda n: per_scan[n].mean())):
         values = np.sort(per_scan[name])
         style = "--" if name.endswith("_reference") else "-"
-        axis.plot(values, np.arange(1, len(values) + 1) / len(values), style, label=name, linewidth=1.2)
+        axis.plot(values, np.arange(1, len(values) + 1) / len(values), style, label=name, linewidth=1.2,
+                  color=colours[index % len(colours)])
     axis.set_xlim(0, cutoff * 1.02)
     axis.set_xlabel(f"OSPA of a scan (m); {cutoff:.0f} m = a missed or a false track")
     axis.set_ylabel("share of scans")
