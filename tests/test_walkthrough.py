@@ -1,0 +1,59 @@
+"""The README's "Walkthrough: your first day", run as written in a fresh copy with tiny params."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import pytest
+
+from tests.project import REPOSITORY, copy_repository, environment, tiny_params_tree, write_params
+
+MARKER = "<!-- walkthrough -->"
+GIT = ["git", "-c", "user.name=test", "-c", "user.email=test@example.invalid"]
+
+
+def walkthrough_script(readme: str) -> str:
+    """The ```bash block right after the marker."""
+    match = re.search(re.escape(MARKER) + r"\s*```bash\n(.*?)\n```", readme, re.DOTALL)
+    assert match, f"README.md has no ```bash block right after {MARKER}"
+    return match.group(1)
+
+
+def test_readme_has_the_walkthrough() -> None:
+    """The block the slow test runs is there, with the steps a newcomer needs."""
+    script = walkthrough_script((REPOSITORY / "README.md").read_text())
+    for step in ("dvc repro", "mlflow ui", "dvc exp run", "dvc exp show", "dvc params diff", "dvc metrics diff",
+                 "dvc plots show", "python -m pipeline track"):
+        assert step in script
+
+
+@pytest.mark.slow
+def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
+    """Every command exits 0, in order, in one shell (`bash -e`: the first failure stops it).
+
+    The copy is set up as a newcomer's clone would be after `make env`, with tiny params as its
+    committed params (so `dvc params diff` shows the walkthrough's change alone), and `.venv/bin`
+    linked to this interpreter's environment. `mlflow ui` serves until stopped, so its command
+    line is checked with `--help` instead, and the runs it would show are looked up afterwards."""
+    repository = copy_repository(tmp_path)
+    params = tiny_params_tree()
+    write_params(params, repository / "params.yaml")
+    subprocess.run([*GIT, "commit", "--quiet", "--all", "--message", "Tiny params"], cwd=repository, check=True)
+    (repository / ".venv").mkdir()
+    (repository / ".venv" / "bin").symlink_to(Path(sys.executable).parent)
+    script, servers = re.subn(r"^mlflow ui .*$", "mlflow ui --help > /dev/null",
+                              walkthrough_script((repository / "README.md").read_text()), flags=re.MULTILINE)
+    assert servers == 1
+
+    result = subprocess.run(["bash", "-e", "-x", "-c", script], cwd=repository, env=environment(),
+                            capture_output=True, text=True)
+    assert result.returncode == 0, f"the walkthrough failed at the last '+' command:\n{result.stderr[-6000:]}"
+
+    client = mlflow.MlflowClient(f"sqlite:///{repository / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name(params["training"]["experiment"])
+    names = {run.info.run_name for run in client.search_runs([experiment.experiment_id])}
+    assert {"train_filter", "train_predictor", "train_autoencoder", "evaluate"} <= names
