@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-import mlflow
 import pytest
 import torch
 import yaml
@@ -278,24 +277,3 @@ def test_training_killed_half_way_leaves_no_partial_output_and_repro_finishes_it
     assert UP_TO_DATE in dvc(repository, "status")
     load_model(repository / "models" / "filter.pt", expected_kind="filter")
     assert json.loads((repository / "reports" / "models" / "filter.json").read_text())["epochs_trained"] == 100
-
-
-def test_ctrl_c_during_training_is_a_failed_run_and_putting_the_param_back_restores_the_model(
-        tiny_run: TinyRun, tmp_path: Path) -> None:
-    """Ctrl-C: no partial output either, and the interrupted training is marked FAILED in MLflow,
-    so the UI shows it neither as still running nor as a finished model. A user who then puts the
-    param back gets the committed model again from DVC's cache, without training."""
-    repository = tiny_run.repository
-    stop_filter_training(tiny_run, 101, signal.SIGINT, tmp_path / "repro.log")
-    assert_nothing_half_written(repository)
-    client = mlflow.MlflowClient(f"sqlite:///{repository / 'mlflow.db'}")
-    experiment = client.get_experiment_by_name(tiny_run.params["training"]["experiment"])
-    latest = client.search_runs([experiment.experiment_id], "attributes.run_name = 'train_filter'",
-                                order_by=["attributes.start_time DESC"], max_results=1)[0]
-    assert latest.data.params["network.epochs"] == "101"
-    assert latest.info.status == "FAILED"
-
-    write_params(tiny_run.params, repository / "params.yaml")
-    assert "Running stage" not in dvc(repository, "repro")
-    assert UP_TO_DATE in dvc(repository, "status")
-    assert model_contents(repository / "models" / "filter.pt") == tiny_run.outputs["models/filter.pt"]
