@@ -509,11 +509,17 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
     return tracker
 
 
-def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
-    p = "evaluate"
+def _split_name(tree: Mapping[str, Any], p: str, splits: tuple[Split, ...]) -> str:
+    """A section's `split`, which must be one of routes.splits."""
     split = _text(tree, "split", p)
     if split not in [s.name for s in splits]:
         raise ParamError(f"{p}.split = {split!r}: no such split in routes.splits")
+    return split
+
+
+def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
+    p = "evaluate"
+    split = _split_name(tree, p, splits)
     runs_tree = _get(tree, "runs", p)
     if not isinstance(runs_tree, list) or not runs_tree:
         raise ParamError(f"{p}.runs = {runs_tree!r}: must list at least one {{method, window_m}}")
@@ -542,9 +548,7 @@ TUNING_COSTS = ("rmse", "nees")
 
 def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
     p = "kalman"
-    split = _text(tree, "split", p)
-    if split not in [s.name for s in splits]:
-        raise ParamError(f"{p}.split = {split!r}: no such split in routes.splits")
+    split = _split_name(tree, p, splits)
     cost = _text(tree, "cost", p)
     if cost not in TUNING_COSTS:
         raise ParamError(f"{p}.cost = {cost!r}: must be one of {TUNING_COSTS}")

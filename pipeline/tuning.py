@@ -31,11 +31,10 @@ from scipy.stats import chi2
 
 from pipeline import baselines, batch_filters
 from pipeline.classical_filters import FilterSettings
-from pipeline.params import Radar
+from pipeline.params import TUNING_COSTS, Radar
 
 log = logging.getLogger("pipeline")
 
-COSTS = ("rmse", "nees")
 SIMPLEX_STEP = 0.7  # the first simplex spans a factor of two in each value (scipy's default, 5 %, of log 1 is 0)
 SEARCH_RANGE = np.log(1000.0)  # each value is searched within a factor of 1000 of its start value
 
@@ -171,8 +170,8 @@ def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: 
 
     Raises TuningError, with the values reached, when the search does not converge or the
     tuned filter is not usable."""
-    if cost not in COSTS:
-        raise ValueError(f"tuning cost {cost!r}: must be one of {COSTS}")
+    if cost not in TUNING_COSTS:
+        raise ValueError(f"tuning cost {cost!r}: must be one of {TUNING_COSTS}")
     before = assess(start, material)
     evaluations = 0
 
