@@ -223,6 +223,7 @@ class Params:
     tracker: TrackerParams
     kalman: Kalman
     evaluate: Evaluate
+    workers: int        # compute.workers: processes for independent work; results do not depend on it
 
 
 def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
@@ -591,6 +592,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         tracker=_tracker(_get(tree, "tracker", "params"), windows),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
+        workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )
 
 
