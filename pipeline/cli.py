@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from datetime import date
 from pathlib import Path
@@ -186,10 +187,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def configure_logging(quiet: bool) -> None:
+    """One format for every line, and Ctrl-C stopping the command.
+
+    A process started with SIGINT ignored (a background job of a non-interactive shell, some
+    test runners) passes that on to DVC and its stages; Python then installs no
+    KeyboardInterrupt handler and Ctrl-C would not stop a training stage, so it is restored."""
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    configure_logging(args.quiet)
     try:
         return args.handler(args) or 0
     except (ParamError, InputError, RouteGenerationError, TrackingError, TuningError) as error:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -29,15 +30,29 @@ class InputError(ValueError):
     """An input file is missing or malformed; the message names the file and the column."""
 
 
+def _mode_for(destination: Path) -> int:
+    try:
+        return stat.S_IMODE(destination.stat().st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 @contextmanager
 def atomic_path(destination: str | Path) -> Iterator[Path]:
-    """Yield a temporary path to write to; it replaces `destination` only if the block succeeds."""
+    """Yield a temporary path to write to; it replaces `destination` only if the block succeeds.
+
+    The new file gets the mode a plain `open` would give it (0666 less the umask), or the mode of
+    the file it replaces: mkstemp's private 0600 would otherwise hide outputs from a team's
+    other accounts."""
     destination = Path(destination)
     destination.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.", suffix=".tmp", dir=destination.parent)
     os.close(handle)
     try:
         yield Path(temporary)
+        os.chmod(temporary, _mode_for(destination))
         os.replace(temporary, destination)
     finally:
         if os.path.exists(temporary):

@@ -9,6 +9,7 @@ The file holds only tensors and plain values, so it loads with `weights_only=Tru
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +37,11 @@ class LoadedModel:
 
 def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,
                extras: dict[str, Any] | None = None) -> None:
-    """Write the bundle atomically."""
+    """Write the bundle atomically; the same weights give the same bytes.
+
+    torch.save names the records of its zip archive after the file it writes to, so saving to
+    the temporary file made the bytes differ from run to run; the bundle is serialised in
+    memory (archive name `bundle`) and written as bytes."""
     bundle = {
         "format_version": FORMAT_VERSION,
         "config": config.to_dict(),
@@ -44,8 +49,9 @@ def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scal
         "extras": extras or {},
         "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()},
     }
-    with io.atomic_path(path) as temporary:
-        torch.save(bundle, temporary)
+    buffer = BytesIO()
+    torch.save(bundle, buffer)
+    io.write_bytes(buffer.getvalue(), path)
 
 
 def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:

@@ -140,6 +140,9 @@ class NetworkTraining:
     validation_fraction: float
     seed: int
     early_stopping_patience: int
+    early_stopping_min_improvement: float
+    lr_decay_factor: float
+    lr_decay_patience: int
 
 
 @dataclass(frozen=True)
@@ -437,16 +440,32 @@ def _network_training(kind: str, tree: Mapping[str, Any], windows: Windows) -> N
         if output_steps > windows.filter_length:
             raise ParamError(f"{p}.output_steps = {output_steps}: above windows.filter_length = "
                              f"{windows.filter_length}")
+    epochs = _integer(tree, "epochs", p, 1)
+    patience = _integer(tree, "early_stopping_patience", p)
+    if patience > epochs:
+        raise ParamError(f"{p}.early_stopping_patience = {patience}: above {p}.epochs = {epochs}, so it could "
+                         "never stop a run (0 turns early stopping off)")
+    lr_decay_patience = _integer(tree, "lr_decay_patience", p)
+    if lr_decay_patience > epochs:
+        raise ParamError(f"{p}.lr_decay_patience = {lr_decay_patience}: above {p}.epochs = {epochs} "
+                         "(0 turns the decay off)")
+    validation_fraction = _number(tree, "validation_fraction", p, 0.0, 0.9)
+    for key, value in (("early_stopping_patience", patience), ("lr_decay_patience", lr_decay_patience)):
+        if value and not validation_fraction:
+            raise ParamError(f"{p}.{key} = {value}: needs validation windows, but {p}.validation_fraction = 0")
     return NetworkTraining(
         hidden=_sizes(tree, "hidden", p),
         decoder_hidden=_sizes(tree, "decoder_hidden", p) if kind == "autoencoder" else (),
         output_steps=output_steps,
-        epochs=_integer(tree, "epochs", p, 1),
+        epochs=epochs,
         batch_size=_integer(tree, "batch_size", p, 1),
         learning_rate=_positive(tree, "learning_rate", p),
-        validation_fraction=_number(tree, "validation_fraction", p, 0.0, 0.9),
+        validation_fraction=validation_fraction,
         seed=_integer(tree, "seed", p),
-        early_stopping_patience=_integer(tree, "early_stopping_patience", p),
+        early_stopping_patience=patience,
+        early_stopping_min_improvement=_number(tree, "early_stopping_min_improvement", p, 0.0, 0.5),
+        lr_decay_factor=_number(tree, "lr_decay_factor", p, 0.0, 1.0, low_open=True),
+        lr_decay_patience=lr_decay_patience,
     )
 
 

@@ -92,7 +92,10 @@ def training_config(kind: str, params: Params) -> TrainingConfig:
     net, cfg = params.training.networks[kind], params.training
     return TrainingConfig(epochs=net.epochs, batch_size=net.batch_size, learning_rate=net.learning_rate,
                           validation_fraction=net.validation_fraction, seed=net.seed,
-                          early_stopping_patience=net.early_stopping_patience, accelerator=cfg.accelerator,
+                          early_stopping_patience=net.early_stopping_patience,
+                          early_stopping_min_improvement=net.early_stopping_min_improvement,
+                          lr_decay_factor=net.lr_decay_factor, lr_decay_patience=net.lr_decay_patience,
+                          accelerator=cfg.accelerator,
                           devices=cfg.devices, strategy=cfg.strategy, threads=cfg.threads,
                           deterministic=cfg.deterministic)
 
@@ -142,33 +145,35 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
                           tags={"stage": f"train_{kind}", "git_commit": experiment_tracking.git_commit(),
                                 "input_data_sha256": experiment_tracking.data_hash(material),
                                 "mlflow.source.name": "python -m pipeline train"})
-    logger.log_hyperparams(_flat_params(kind, params))
     log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), logger.run_id, uri)
-
     try:
+        logger.log_hyperparams(_flat_params(kind, params))
         module, history = train(config, inputs, targets, training_config(kind, params), logger)
         model = LoadedModel(module.network, config, scaler)
         metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
+        metrics["epochs_trained"] = len(history.train_loss)
+        metrics["kept_epoch"] = history.kept_epoch
+        metrics["kept_validation_loss"] = history.validation_loss[history.kept_epoch - 1]
+        metrics["final_train_loss"] = history.train_loss[-1]
+        metrics["final_validation_loss"] = history.validation_loss[-1]
+        loss_png = figures.loss_curve(history.train_loss, history.validation_loss, kind)
+        loss_csv = "epoch,train_loss,validation_loss\n" + "".join(
+            f"{epoch},{a:.8g},{b:.8g}\n" for epoch, (a, b) in
+            enumerate(zip(history.train_loss, history.validation_loss), start=1))
+
+        model_path = models_dir / f"{kind}.pt"
+        save_model(model_path, module.network, config, scaler, extras)
+        io.write_bytes(loss_png, reports_dir / f"loss_{kind}.png")
+        io.write_text(loss_csv, reports_dir / "loss" / f"{kind}.csv")
+        io.write_json(metrics, reports_dir / "models" / f"{kind}.json")
+        logger.log_metrics({key: float(value) for key, value in metrics.items()})
+        for artifact in (model_path, reports_dir / f"loss_{kind}.png", reports_dir / "models" / f"{kind}.json"):
+            logger.experiment.log_artifact(logger.run_id, str(artifact))
     except BaseException:
-        # Lightning marks the run finished when fit ends; a later failure must not look like success.
+        # Ctrl-C, a failure in training or after it: Lightning may already have marked the run
+        # finished when fit ended, and a failed stage must not look like a success in MLflow.
         logger.experiment.set_terminated(logger.run_id, "FAILED")
         raise
-    metrics["epochs_trained"] = len(history.train_loss)
-    metrics["final_train_loss"] = history.train_loss[-1]
-    metrics["final_validation_loss"] = history.validation_loss[-1]
-    loss_png = figures.loss_curve(history.train_loss, history.validation_loss, kind)
-    loss_csv = "epoch,train_loss,validation_loss\n" + "".join(
-        f"{epoch},{a:.8g},{b:.8g}\n" for epoch, (a, b) in
-        enumerate(zip(history.train_loss, history.validation_loss), start=1))
-
-    model_path = models_dir / f"{kind}.pt"
-    save_model(model_path, module.network, config, scaler, extras)
-    io.write_bytes(loss_png, reports_dir / f"loss_{kind}.png")
-    io.write_text(loss_csv, reports_dir / "loss" / f"{kind}.csv")
-    io.write_json(metrics, reports_dir / "models" / f"{kind}.json")
-    logger.log_metrics({key: float(value) for key, value in metrics.items()})
-    for artifact in (model_path, reports_dir / f"loss_{kind}.png", reports_dir / "models" / f"{kind}.json"):
-        logger.experiment.log_artifact(logger.run_id, str(artifact))
     logger.finalize("success")
     log.info("train %s: %s", kind, ", ".join(f"{k} {v:.4g}" for k, v in metrics.items()))
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import dataclass
 
 import lightning as L
@@ -23,6 +24,31 @@ from pipeline.networks import NetworkConfig, build_network
 
 log = logging.getLogger("pipeline")
 
+
+class _DropAdvertising(logging.Filter):
+    """Lightning logs tips for its paid services at every Trainer start; they are not ours to print."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "Tip:" not in record.getMessage()
+
+
+def _lightning_logs_through_root() -> None:
+    """Each Lightning line printed once, in the application's format.
+
+    The `lightning` package adds a handler of its own to its logger and lets records propagate
+    to the root logger too, so an application that configured logging printed every Lightning
+    line twice. Its subpackages follow the convention this restores: when the root logger has
+    handlers, records go there only."""
+    if logging.getLogger().hasHandlers():
+        package_logger = logging.getLogger("lightning")
+        for handler in list(package_logger.handlers):
+            package_logger.removeHandler(handler)
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropAdvertising())
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+
+
+_lightning_logs_through_root()
+
 VALIDATION_BATCH = 4096
 
 
@@ -33,12 +59,15 @@ class TrainingConfig:
     learning_rate: float
     validation_fraction: float
     seed: int
-    early_stopping_patience: int  # epochs without a better validation loss; 0 = off
+    early_stopping_patience: int  # epochs without a better validation loss before stopping; 0 = off
     accelerator: str
     devices: int | str
     strategy: str
     threads: int
     deterministic: bool
+    early_stopping_min_improvement: float = 0.0  # relative: better means below the best so far x (1 - this)
+    lr_decay_factor: float = 0.5  # the learning rate is multiplied by this ...
+    lr_decay_patience: int = 0    # ... after this many epochs without a better validation loss; 0 = off
 
 
 class TensorBatches(Dataset):
@@ -81,7 +110,8 @@ class WindowDataModule(L.LightningDataModule):
 class NetworkModule(L.LightningModule):
     """One of the thesis's networks, trained on MSE with Adam."""
 
-    def __init__(self, config: dict, learning_rate: float) -> None:
+    def __init__(self, config: dict, learning_rate: float, lr_decay_factor: float = 1.0,
+                 lr_decay_patience: int = 0, min_improvement: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.network = build_network(NetworkConfig.from_dict(config))
@@ -115,8 +145,15 @@ class NetworkModule(L.LightningModule):
         self.log("val_loss", self.loss(self.network(inputs), targets), on_step=False, on_epoch=True,
                  batch_size=len(inputs), sync_dist=True)
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.parameters(), lr=self.learning_rate)
+    def configure_optimizers(self) -> torch.optim.Optimizer | dict:
+        optimizer = torch.optim.Adam(self.parameters(), lr=self.learning_rate)
+        if not self.hparams.get("lr_decay_patience"):
+            return optimizer
+        # Keras's ReduceLROnPlateau, as Lightning schedules it: checked on val_loss after each epoch.
+        plateau = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=self.hparams["lr_decay_factor"],
+                                                             patience=self.hparams["lr_decay_patience"] - 1,
+                                                             threshold=self.hparams["min_improvement"])
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": plateau, "monitor": "val_loss"}}
 
 
 class EpochLog(L.Callback):
@@ -126,6 +163,7 @@ class EpochLog(L.Callback):
         self.label, self.every_s = label, every_s
         self.train_loss: list[float] = []
         self.validation_loss: list[float] = []
+        self.kept_epoch = 0  # the epoch whose weights the model keeps (1-based), set when training ends
         self._last = 0.0
         self._start = 0.0
 
@@ -144,21 +182,58 @@ class EpochLog(L.Callback):
                      trainer.max_epochs, self.train_loss[-1], self.validation_loss[-1], now - self._start)
 
 
+class BestValidation(L.Callback):
+    """Early stopping on the validation loss that also keeps the best epoch's weights.
+
+    Lightning's EarlyStopping stops but leaves the last epoch's weights, and measures
+    improvement in absolute loss units, which differ by a factor of ten between these
+    networks; here an epoch improves when its validation loss is below the best so far
+    times (1 - min_improvement), and the weights of the best epoch are restored when
+    training ends. With patience 0 the run goes to its last epoch and keeps its weights
+    (the thesis's schedule)."""
+
+    def __init__(self, patience: int, min_improvement: float) -> None:
+        self.patience, self.min_improvement = patience, min_improvement
+        self.best_loss = float("inf")
+        self.best_epoch = 0
+        self._best_state: dict[str, torch.Tensor] | None = None
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        if trainer.sanity_checking or "val_loss" not in trainer.callback_metrics:
+            return
+        loss = float(trainer.callback_metrics["val_loss"])
+        epoch = trainer.current_epoch + 1
+        if loss < self.best_loss * (1.0 - self.min_improvement):
+            self.best_loss, self.best_epoch = loss, epoch
+            if self.patience:
+                self._best_state = {name: value.detach().clone() for name, value in module.state_dict().items()}
+        elif self.patience and epoch - self.best_epoch >= self.patience:
+            trainer.should_stop = True
+
+    def on_fit_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        if self._best_state is not None:
+            module.load_state_dict(self._best_state)
+
+
 def train(config: NetworkConfig, inputs: np.ndarray, targets: np.ndarray, training: TrainingConfig,
           logger: L.pytorch.loggers.Logger | bool = False) -> tuple[NetworkModule, EpochLog]:
-    """Train one network from scratch; deterministic for a given seed on the same machine."""
+    """Train one network from scratch; deterministic for a given seed on the same machine.
+
+    Returns the module in eval mode (with the best epoch's weights under early stopping) and
+    the per-epoch losses with the epoch whose weights it kept."""
     torch.set_num_threads(training.threads)
     L.seed_everything(training.seed, workers=True, verbose=False)
     data = WindowDataModule(inputs, targets, training.batch_size, training.validation_fraction, training.seed)
-    module = NetworkModule(config.to_dict(), training.learning_rate)
+    module = NetworkModule(config.to_dict(), training.learning_rate, training.lr_decay_factor,
+                           training.lr_decay_patience, training.early_stopping_min_improvement)
     history = EpochLog(config.kind)
-    callbacks: list[L.Callback] = [history]
-    if training.early_stopping_patience > 0:
-        callbacks.append(L.pytorch.callbacks.EarlyStopping("val_loss", patience=training.early_stopping_patience))
+    best = BestValidation(training.early_stopping_patience, training.early_stopping_min_improvement)
+    callbacks: list[L.Callback] = [history, best]
     trainer = L.Trainer(max_epochs=training.epochs, accelerator=training.accelerator, devices=training.devices,
                         strategy=training.strategy, logger=logger, callbacks=callbacks, deterministic=training.deterministic,
                         enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-                        num_sanity_val_steps=0, limit_val_batches=1.0 if len(data.validation_set) else 0)
+                        num_sanity_val_steps=0, **({} if len(data.validation_set) else {"limit_val_batches": 0}))
     trainer.fit(module, datamodule=data)
     module.eval()
+    history.kept_epoch = best.best_epoch if training.early_stopping_patience else len(history.train_loss)
     return module, history

@@ -42,6 +42,11 @@ def test_default_params_load():
     ("radar.range_min_m", 500e3, ["radar.range_min_m", "500000.0"]),
     ("routes.start_time_utc", "tomorrow", ["routes.start_time_utc", "tomorrow"]),
     ("aircraft.fighter.altitude_m", [1000.0, 16000.0], ["aircraft.fighter.altitude_m", "16000.0"]),
+    # impossible training schedules
+    ("training.predictor.early_stopping_min_improvement", -0.01,
+     ["training.predictor.early_stopping_min_improvement", "-0.01"]),
+    ("training.autoencoder.lr_decay_factor", 0.0, ["training.autoencoder.lr_decay_factor", "0.0"]),
+    ("compute.workers", 0, ["compute.workers", "0"]),
 ])
 def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
     """An invalid value raises ParamError whose message names the key and the value."""
@@ -58,6 +63,23 @@ def test_missing_key_is_named(params_tree, section, key):
     """A missing key raises ParamError naming its full path."""
     del params_tree[section][key]
     with pytest.raises(ParamError, match=f"{section}.{key}: missing"):
+        parse_params(params_tree)
+
+
+@pytest.mark.parametrize("key", ["early_stopping_patience", "lr_decay_patience"])
+def test_patience_longer_than_the_run_is_refused(params_tree, key):
+    """A patience above the epochs could never act: it is an error naming both keys."""
+    set_key(params_tree, "training.autoencoder.epochs", 40)
+    set_key(params_tree, f"training.autoencoder.{key}", 41)
+    with pytest.raises(ParamError, match=rf"training.autoencoder.{key} = 41: above training.autoencoder.epochs = 40"):
+        parse_params(params_tree)
+
+
+def test_early_stopping_without_validation_windows_is_refused(params_tree):
+    """Early stopping watches the validation loss, so it needs a validation share."""
+    set_key(params_tree, "training.filter.validation_fraction", 0.0)
+    set_key(params_tree, "training.filter.early_stopping_patience", 5)
+    with pytest.raises(ParamError, match=r"training.filter.early_stopping_patience = 5.*validation_fraction = 0"):
         parse_params(params_tree)
 
 

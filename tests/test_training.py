@@ -26,7 +26,7 @@ from pipeline.model_store import load_model, save_model
 from pipeline.networks import KINDS, NetworkConfig, build_network
 from pipeline.scaling import plot_scaler
 from pipeline.train_stage import network_config
-from pipeline.training import TrainingConfig, train
+from pipeline.training import TrainingConfig, WindowDataModule, train
 from tests.project import REPOSITORY, environment, run_pipeline, tiny_params_tree, write_params
 
 # The networks of params.yaml (thesis 4.3).
@@ -121,6 +121,39 @@ def test_early_stopping_ends_training_when_validation_loss_stops_improving():
     frozen = dataclasses.replace(FEW_EPOCHS, epochs=10, learning_rate=0.0, early_stopping_patience=1)
     _, history = train(CONFIGS["filter"], inputs, targets, frozen)
     assert len(history.train_loss) == 2
+
+
+def test_early_stopping_keeps_the_weights_of_the_best_epoch():
+    """Windows whose targets are pure noise: the network can only memorise its training windows,
+    so the validation loss is lowest early and then rises. Training stops `patience` epochs after
+    the best one, and the network handed back is that epoch's: its loss on the validation
+    windows is the one recorded for the epoch, not the last epoch's."""
+    rng = np.random.default_rng(3)
+    config = CONFIGS["predictor"]
+    inputs = rng.standard_normal((200, config.input_steps, config.input_features))
+    targets = rng.standard_normal((200, config.output_steps, config.output_features))
+    schedule = dataclasses.replace(FEW_EPOCHS, epochs=60, learning_rate=0.03, early_stopping_patience=4)
+    module, history = train(config, inputs, targets, schedule)
+
+    best = int(np.argmin(history.validation_loss)) + 1
+    assert history.kept_epoch == best
+    assert len(history.train_loss) == best + 4 < 60
+    assert history.validation_loss[-1] > history.validation_loss[best - 1]
+    validation = WindowDataModule(inputs, targets, schedule.batch_size, schedule.validation_fraction,
+                                  schedule.seed).validation_set
+    with torch.no_grad():
+        loss = torch.nn.functional.mse_loss(module(validation.inputs), validation.targets).item()
+    assert loss == pytest.approx(history.validation_loss[best - 1], rel=1e-5)
+
+
+def test_learning_rate_decay_halves_the_rate_on_a_plateau():
+    """A learning rate too small to move the network keeps the validation loss on a plateau: with
+    decay patience 2, the rate is halved after each second epoch without improvement, twice in 6."""
+    inputs, targets = smooth_windows(CONFIGS["filter"], 100)
+    schedule = dataclasses.replace(FEW_EPOCHS, epochs=6, learning_rate=1e-12, lr_decay_patience=2,
+                                   lr_decay_factor=0.5, early_stopping_min_improvement=0.01)
+    module, _ = train(CONFIGS["filter"], inputs, targets, schedule)
+    assert module.optimizers().param_groups[0]["lr"] == pytest.approx(1e-12 * 0.5 ** 2)
 
 
 def test_same_seed_gives_the_same_weights_and_another_seed_other_weights():

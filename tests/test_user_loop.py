@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+import mlflow
 import pytest
-import torch
 import yaml
 
 from pipeline.model_store import load_model
@@ -65,16 +65,6 @@ def restore_committed_state(repository: Path) -> None:
     assert UP_TO_DATE in dvc(repository, "status")
 
 
-def model_contents(path: Path) -> dict[str, Any]:
-    """A model bundle (pipeline.model_store) with its tensors as dtype, shape and raw bytes, so two
-    bundles compare exactly. The file's own bytes do not: torch.save records the name of the
-    temporary file it wrote to, which differs from run to run."""
-    bundle = torch.load(path, map_location="cpu", weights_only=True)
-    bundle["state_dict"] = {name: (str(tensor.dtype), tuple(tensor.shape), tensor.numpy().tobytes())
-                            for name, tensor in bundle["state_dict"].items()}
-    return bundle
-
-
 def without_timing(metrics: Any) -> Any:
     if isinstance(metrics, dict):
         return {key: without_timing(value) for key, value in metrics.items() if not TIMING_KEY.search(key)}
@@ -82,8 +72,9 @@ def without_timing(metrics: Any) -> Any:
 
 
 def reproducible_outputs(repository: Path) -> dict[str, Any]:
-    """What the same params must reproduce exactly, by path: every file under data/ (bytes), every
-    model's config, scaler, extras and weights, every metrics JSON and loss curve under reports/.
+    """What the same params must reproduce exactly, by path: every file under data/ and every model
+    file (bytes, so a fresh run reproduces dvc.lock's hashes), every metrics JSON and loss curve
+    under reports/.
 
     Left out: pictures (test_determinism covers the data report's), and in metrics JSON the keys
     that name a wall-clock measurement (`per_second`, `seconds`, `runtime`: a tracker run's
@@ -94,7 +85,7 @@ def reproducible_outputs(repository: Path) -> dict[str, Any]:
         if path.is_file():
             outputs[str(path.relative_to(repository))] = path.read_bytes()
     for path in sorted((repository / "models").glob("*.pt")):
-        outputs[str(path.relative_to(repository))] = model_contents(path)
+        outputs[str(path.relative_to(repository))] = path.read_bytes()
     for path in sorted((repository / "reports").rglob("*.json")):
         outputs[str(path.relative_to(repository))] = without_timing(json.loads(path.read_text()))
     for path in sorted((repository / "reports" / "loss").glob("*.csv")):
@@ -277,3 +268,28 @@ def test_training_killed_half_way_leaves_no_partial_output_and_repro_finishes_it
     assert UP_TO_DATE in dvc(repository, "status")
     load_model(repository / "models" / "filter.pt", expected_kind="filter")
     assert json.loads((repository / "reports" / "models" / "filter.json").read_text())["epochs_trained"] == 100
+
+
+def test_ctrl_c_during_training_is_a_failed_run_and_putting_the_param_back_restores_the_model(
+        tiny_run: TinyRun, tmp_path: Path) -> None:
+    """Ctrl-C (SIGINT to dvc and the stage, as a terminal sends it): the stage stops, dvc exits
+    non-zero, no output is half written and the model file is absent, and the interrupted run is
+    marked FAILED in MLflow, so the UI shows it neither as still running nor as a finished model.
+    This holds even when the test runner started dvc with SIGINT ignored (the stage restores
+    Python's handler). A user who then puts the param back gets the committed model again from
+    DVC's cache, without training."""
+    repository = tiny_run.repository
+    stop_filter_training(tiny_run, 101, signal.SIGINT, tmp_path / "repro.log")
+    assert_nothing_half_written(repository)
+    assert not (repository / "models" / "filter.pt").exists()
+    client = mlflow.MlflowClient(f"sqlite:///{repository / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name(tiny_run.params["training"]["experiment"])
+    latest = client.search_runs([experiment.experiment_id], "attributes.run_name = 'train_filter'",
+                                order_by=["attributes.start_time DESC"], max_results=1)[0]
+    assert latest.data.params["network.epochs"] == "101"
+    assert latest.info.status == "FAILED"
+
+    write_params(tiny_run.params, repository / "params.yaml")
+    assert "Running stage" not in dvc(repository, "repro")
+    assert UP_TO_DATE in dvc(repository, "status")
+    assert (repository / "models" / "filter.pt").read_bytes() == tiny_run.outputs["models/filter.pt"]

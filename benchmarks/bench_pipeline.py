@@ -1,0 +1,122 @@
+"""Wall time and peak memory of every stage of a fresh `dvc repro`, as a user runs it.
+
+Copies the repository as a fresh clone would have it (the files git tracks or does not
+ignore, so no data, no models, no DVC cache) into a temporary folder, then runs the
+pipeline stage by stage in the order `dvc.yaml` lists them (an order DVC accepts:
+each stage comes after what it depends on), each with `dvc repro --single-item <stage>`
+in a fresh process. Each stage's wall time includes DVC's own start and hashing, so the
+sum is what a user waits for `dvc repro`. Peak memory is the largest resident set of the
+processes of that stage (`os.wait4`: DVC and the stage's Python). The result goes to
+`reports/pipeline_speed.json` (atomically), and the README's Speed table is regenerated
+from it with `python -m pipeline readme`.
+
+    python benchmarks/bench_pipeline.py                      # default params.yaml, ~10 minutes
+    python benchmarks/bench_pipeline.py --params tiny.yaml --out /tmp/speed.json --no-readme
+
+Run it on an otherwise idle machine: the stages use both cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import yaml
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPOSITORY))
+
+from pipeline import io  # noqa: E402  (the repository's package, whichever folder this runs from)
+
+
+def fresh_copy(destination: Path) -> Path:
+    """The files a fresh clone has (tracked, or untracked and not ignored), in a new git repository."""
+    listing = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
+                             cwd=REPOSITORY, capture_output=True, text=True, check=True).stdout
+    for name in filter(None, listing.split("\0")):
+        source = REPOSITORY / name
+        if source.is_file():
+            (destination / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, destination / name)
+    git = ["git", "-c", "user.name=bench", "-c", "user.email=bench@example.invalid"]
+    for command in (["git", "init", "-q"], [*git, "add", "-A"], [*git, "commit", "-q", "-m", "fresh copy"]):
+        subprocess.run(command, cwd=destination, check=True)
+    return destination
+
+
+def timed(command: list[str], cwd: Path, env: dict[str, str], log: Path) -> tuple[float, float, int]:
+    """Wall seconds, peak RSS (MiB) of the process tree, and exit code of one command."""
+    start = time.perf_counter()
+    with log.open("ab") as output:
+        child = subprocess.Popen(command, cwd=cwd, env=env, stdout=output, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(child.pid, 0)
+    return time.perf_counter() - start, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
+
+
+def machine() -> dict:
+    import torch
+
+    return {"cpus": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
+            "processor": platform.processor() or platform.machine()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--params", type=Path, help="params file to run with (default: the repository's params.yaml)")
+    parser.add_argument("--out", type=Path, default=REPOSITORY / "reports" / "pipeline_speed.json",
+                        help="where the JSON goes (default: %(default)s)")
+    parser.add_argument("--no-readme", action="store_true", help="do not regenerate the README from the result")
+    parser.add_argument("--keep", action="store_true", help="keep the temporary copy and print where it is")
+    args = parser.parse_args()
+
+    folder = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
+    try:
+        copy = fresh_copy(folder / "repository")
+        if args.params:
+            shutil.copyfile(args.params, copy / "params.yaml")
+        stages = list(yaml.safe_load((copy / "dvc.yaml").read_text())["stages"])
+        env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+        env.pop("MLFLOW_TRACKING_URI", None)  # the copy's own mlflow.db, as on a fresh clone
+        log = folder / "repro.log"
+        results, total = {}, 0.0
+        for stage in stages:
+            seconds, peak, code = timed([sys.executable, "-m", "dvc", "repro", "--single-item", stage], copy, env, log)
+            if code != 0:
+                raise SystemExit(f"stage {stage} failed (exit {code}); its output:\n{log.read_text()[-4000:]}")
+            total += seconds
+            results[stage] = {"seconds": round(seconds, 1), "peak_memory_mib": round(peak)}
+            print(f"{stage:18s} {seconds:7.1f} s  {peak:6.0f} MiB  (total {total / 60:.1f} min)", flush=True)
+        params = yaml.safe_load((copy / "params.yaml").read_text())
+        report = {
+            "what": "a fresh `dvc repro`, stage by stage (`dvc repro --single-item`), default params"
+                    if not args.params else f"a fresh `dvc repro`, stage by stage, params from {args.params.name}",
+            "command": "python benchmarks/bench_pipeline.py",
+            "date": datetime.now(timezone.utc).strftime("%Y-%m-%d"),
+            "machine": machine(),
+            "workers": params.get("compute", {}).get("workers"),
+            "total_seconds": round(total, 1),
+            "stages": results,
+        }
+        io.write_json(report, args.out)
+        print(f"fresh dvc repro: {total / 60:.1f} min; written to {args.out}")
+        if not args.no_readme:
+            subprocess.run([sys.executable, "-m", "pipeline", "readme", "--readme", str(REPOSITORY / "README.md"),
+                            "--reports", str(REPOSITORY / "reports")], cwd=REPOSITORY, check=True)
+    finally:
+        if args.keep:
+            print(f"the copy is in {folder}")
+        else:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
