@@ -20,8 +20,8 @@ def default_params_tree() -> dict[str, Any]:
 
 
 def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
-    """The default params with a handful of routes per split and two training epochs: the whole
-    pipeline in about a minute."""
+    """The default params with a handful of routes per split and two training epochs (no early
+    stopping, so a run's length is its `epochs`): the whole pipeline in about a minute."""
     tree = copy.deepcopy(default_params_tree())
     for split in tree["routes"]["splits"].values():
         split["constant_jerk"] = routes_per_strategy
@@ -30,6 +30,8 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["windows"]["holdout_fraction"] = 0.25  # a handful of segments: 5 % would hold out none
     for network in ("filter", "predictor", "autoencoder"):
         tree["training"][network]["epochs"] = 2
+        tree["training"][network]["early_stopping_patience"] = 0  # runs of a fixed length, as tests expect
+        tree["training"][network]["lr_decay_patience"] = 1
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0},
                                 {"method": "kalman_cv", "window_m": 4000.0}]
     tree["evaluate"]["example_scenarios"] = 1

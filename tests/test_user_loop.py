@@ -224,11 +224,12 @@ def stop_filter_training(tiny_run: TinyRun, epochs: int, signal_number: int, log
     training send `signal_number` to the whole process group (dvc and the stage), as Ctrl-C in a
     terminal does.
 
-    `epochs` is some seconds of training, so the signal lands in it, and differs between tests:
+    `epochs` of batches of 16 is some seconds of training, so the signal lands in it, and differs between tests:
     DVC's run cache restores a finished run with the same params instead of training again."""
     repository = tiny_run.repository
     restore_committed_state(repository)
-    write_params(tiny_run.params_with({"training.filter.epochs": epochs}), repository / "params.yaml")
+    write_params(tiny_run.params_with({"training.filter.epochs": epochs, "training.filter.batch_size": 16}),
+                 repository / "params.yaml")
     with log.open("w") as output:
         process = subprocess.Popen([sys.executable, "-m", "dvc", "repro"], cwd=repository, env=environment(),
                                    stdout=output, stderr=subprocess.STDOUT, start_new_session=True)

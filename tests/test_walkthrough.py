@@ -9,7 +9,9 @@ from pathlib import Path
 
 import mlflow
 import pytest
+import yaml
 
+from pipeline.params import parse_params
 from tests.project import REPOSITORY, copy_repository, environment, tiny_params_tree, write_params
 
 MARKER = "<!-- walkthrough -->"
@@ -57,3 +59,27 @@ def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
     experiment = client.get_experiment_by_name(params["training"]["experiment"])
     names = {run.info.run_name for run in client.search_runs([experiment.experiment_id])}
     assert {"train_filter", "train_predictor", "train_autoencoder", "evaluate"} <= names
+
+
+def test_readme_thesis_schedule_command_sets_the_thesis_schedule(params_tree) -> None:
+    """The README's one command for the thesis's schedule, applied as `dvc exp run -S` applies
+    it, gives valid params with the thesis's epochs, batches and learning rate, and neither
+    early stopping nor learning-rate decay."""
+    readme = (REPOSITORY / "README.md").read_text()
+    match = re.search(r"<!-- thesis-schedule -->\s*```bash\n(.*?)\n```", readme, re.DOTALL)
+    assert match, "README.md has no ```bash block after <!-- thesis-schedule -->"
+    command = match.group(1).replace("\\\n", " ")
+    assert command.split()[:3] == ["dvc", "exp", "run"]
+    for dotted, value in re.findall(r"-S (\S+)=(\S+)", command):
+        *parents, key = dotted.split(".")
+        node = params_tree
+        for parent in parents:
+            node = node[parent]
+        assert key in node, f"{dotted}: not a key of params.yaml"
+        node[key] = yaml.safe_load(value)
+    networks = parse_params(params_tree).training.networks
+    thesis = {"filter": (500, 128), "predictor": (500, 128), "autoencoder": (400, 64)}
+    for kind, (epochs, batch) in thesis.items():
+        network = networks[kind]
+        assert (network.epochs, network.batch_size, network.learning_rate) == (epochs, batch, 0.001)
+        assert network.early_stopping_patience == network.lr_decay_patience == 0
