@@ -1,10 +1,14 @@
-"""The classical filters of the tracker, built from filterpy: a CV or CA Kalman filter, or an IMM.
+"""The classical filters of the tracker, defined with filterpy: a CV or CA Kalman filter, or an IMM.
 
 `FilterSettings` is everything that defines one (its motion models, their process noise and
 the spread of a new track's velocity); the tuner chooses these values and saves them in
-`models/kalman_tuned.json`, the tracker loads them. Each track owns one filter object, started
-at its first plot; `advance` steps it to a plot's time and `predicted_gaussian` gives the
-prediction at any time without changing it (for gating several candidate plots).
+`models/kalman_tuned.json`, the tracker loads them.
+
+The filterpy objects built here are the reference: the tuner, the comparison and the tracker
+run the same equations on NumPy arrays (`pipeline.batch_filters`; one small batch per track in
+`pipeline.tracker.kalman`), which the tests check against these objects step by step. A filter
+is started at one plot (`start_filter`); `advance` steps it to a plot's time and
+`predicted_gaussian` gives the prediction at any time without changing it (what gating needs).
 
 The IMM is filterpy's `IMMEstimator` over a constant-velocity and a constant-acceleration
 model in one 9-entry state (see `pipeline.motion_models`). Its prediction for gating mixes the

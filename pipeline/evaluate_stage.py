@@ -8,18 +8,28 @@ Besides the thesis's metrics every run gets OSPA (`pipeline.ospa`), ANEES where 
 gives covariances, and its speed in plots per second (tracking time only, one core). Two
 references bound the problem: `plots`, the target's raw plots taken as the estimate with the
 true association, and `oracle`, the tuned IMM given the true association.
+
+The work is one unit per (run, scenario), all independent, spread over `compute.workers`
+processes (1: all in this one). Units are handed out largest first so no worker is left with
+a long one at the end, and their results are put together by run and scenario, never in the
+order they finish: the reports are the same byte for byte whatever the number of workers,
+except the speeds, which are timings.
 """
 
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import torch
 
 from pipeline import baselines, classical_filters, experiment_tracking, figures, io, materials, ospa, routes, simulate
 from pipeline.model_store import load_model
@@ -113,38 +123,6 @@ def reference_updates(scenario: Scenario, method: str, models: Models, params: P
             "position_covariance": baselines.measurement_covariance(features[:, 1:4], params.radar)}
 
 
-def evaluate_run(name: str, track: callable, scenarios: list[Scenario], params: Params
-                 ) -> tuple[dict, dict[int, dict], np.ndarray]:
-    """Metrics of one tracker (`track(scenario)` gives its updates), each scenario's updates,
-    and the OSPA of every scan of every scenario."""
-    counts: list[RouteCounts] = []
-    scan_ospa, nees = [], []
-    updates_by_scenario = {}
-    report = progress_logger(f"evaluate {name}")
-    elapsed = 0.0
-    confirmed = params.tracker.weight_confirmed
-    for done, scenario in enumerate(scenarios, start=1):
-        start = time.perf_counter()
-        updates = track(scenario)
-        elapsed += time.perf_counter() - start
-        counts.append(route_counts(updates, scenario.is_target, scenario.truth, confirmed))
-        scan_of_plot = dict(zip(scenario.plot_ids.tolist(), scenario.scans.tolist()))
-        scan_ospa.append(ospa.scan_ospa(
-            updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), confirmed,
-            scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
-            params.evaluate.ospa_order))
-        nees.append(confirmed_nees(updates, scenario.is_target, scenario.truth, confirmed))
-        updates_by_scenario[scenario.scenario_id] = updates
-        report(done, len(scenarios))
-    plots = sum(len(s.features) for s in scenarios)
-    all_nees = np.concatenate(nees)
-    per_scan = np.concatenate(scan_ospa)
-    metrics = {**summarise(counts), "OSPA": float(per_scan.mean()), "OSPA_p90": float(np.percentile(per_scan, 90)),
-               "ANEES": float(all_nees.mean()) if len(all_nees) and np.isfinite(all_nees).all() else float("nan"),
-               "plots_per_second": plots / elapsed if elapsed else float("nan")}
-    return metrics, updates_by_scenario, per_scan
-
-
 def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
     """Every run of params, and the references, as name -> track(scenario)."""
     def method_run(run: EvaluationRun) -> callable:
@@ -159,25 +137,158 @@ def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
             **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
 
 
+# Rough tracking time per plot of each method, relative to VIA (measured on the default test
+# split). Only the order in which units are handed out depends on it, never a result.
+RELATIVE_COST = {"via": 1.0, "radius": 0.7, "mia": 2.2, "ae": 1.0, "kalman_cv": 1.5, "kalman_ca": 1.5, "imm": 2.0,
+                 "imm_gnn": 2.2, "oracle": 0.9, "plots": 0.03}
+
+
+@dataclass
+class UnitResult:
+    """What tracking one scenario with one run contributes to the run's metrics."""
+
+    counts: RouteCounts
+    scan_ospa: np.ndarray                  # OSPA (m) of each scan of the scenario
+    nees: np.ndarray                       # NEES of each confirmed target update (NaN without covariances)
+    seconds: float                         # tracking time alone
+    updates: dict[str, np.ndarray] | None  # the updates, kept only where a picture needs them
+
+
+@dataclass
+class Evaluation:
+    """What every unit reads: the params, the test scenarios, and each run as name -> track(scenario);
+    and the folders they come from (simulated data, routes, models), for worker processes to load
+    their own copy."""
+
+    params: Params
+    folders: tuple[Path, Path, Path]
+    scenarios: list[Scenario]
+    runs: dict[str, Callable[[Scenario], dict[str, np.ndarray]]]
+
+
+def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
+    """The scenarios of the evaluated split and every run, with the models loaded (and checked
+    against params)."""
+    split = params.evaluate.split
+    scenarios = load_scenarios(io.read_parquet(simulated_dir / split / "plots.parquet", simulate.PLOT_SCHEMA),
+                               io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
+                               io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
+    models = load_tracker_models(models_dir, params, [run.method for run in params.evaluate.runs]
+                                 + [ORACLE for method in params.evaluate.references if method == ORACLE])
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), scenarios, tracker_runs(params, models))
+
+
+def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
+    """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
+    params, scenario = evaluation.params, evaluation.scenarios[index]
+    confirmed = params.tracker.weight_confirmed
+    start = time.perf_counter()
+    updates = evaluation.runs[name](scenario)
+    seconds = time.perf_counter() - start
+    scan_of_plot = dict(zip(scenario.plot_ids.tolist(), scenario.scans.tolist()))
+    scan_ospa = ospa.scan_ospa(
+        updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), confirmed,
+        scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
+        params.evaluate.ospa_order)
+    pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
+    return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, confirmed), scan_ospa,
+                      confirmed_nees(updates, scenario.is_target, scenario.truth, confirmed), seconds,
+                      updates if pictured else None)
+
+
+def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
+    """A run's metrics from its units in scenario order; `plots` is the number of plots of all
+    scenarios, and the speed counts the tracking time alone, summed over the units."""
+    nees = np.concatenate([r.nees for r in results])
+    per_scan = np.concatenate([r.scan_ospa for r in results])
+    seconds = sum(r.seconds for r in results)
+    return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
+            "OSPA_p90": float(np.percentile(per_scan, 90)),
+            "ANEES": float(nees.mean()) if len(nees) and np.isfinite(nees).all() else float("nan"),
+            "plots_per_second": plots / seconds if seconds else float("nan")}
+
+
+def relative_cost(name: str, scenario: Scenario) -> float:
+    """Rough tracking time of one unit (run `name`, one scenario), to hand out the largest first."""
+    method = name.removesuffix("_reference") if name.endswith("_reference") else name.rsplit("_", 1)[0]
+    return RELATIVE_COST.get(method, max(RELATIVE_COST.values())) * len(scenario.features)
+
+
+_WORKER: Evaluation | None = None  # a worker process's evaluation, made by its initializer
+
+
+def _start_worker(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> None:
+    """Worker initializer: read the scenarios and load the models once for all the units it runs.
+    Batches are a few windows: one PyTorch thread (ONNX Runtime sessions use one already)."""
+    global _WORKER
+    torch.set_num_threads(1)
+    _WORKER = prepare(params, simulated_dir, routes_dir, models_dir)
+
+
+def _unit_in_worker(name: str, index: int) -> UnitResult:
+    return evaluate_unit(_WORKER, name, index)
+
+
+def completed_units(evaluation: Evaluation, units: list[tuple[str, int]], workers: int
+                    ) -> Iterator[tuple[tuple[str, int], UnitResult]]:
+    """Each unit (run name, scenario index) with its result, as it completes: in this process with
+    one worker, else in `workers` processes started by the forkserver (a forked copy of a process
+    running PyTorch or ONNX Runtime threads can deadlock), each loading its own scenarios and
+    models. Units are started in the order given."""
+    if workers == 1:
+        for unit in units:
+            yield unit, evaluate_unit(evaluation, *unit)
+        return
+    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("forkserver"), _start_worker,
+                               (evaluation.params, *evaluation.folders))
+    try:
+        pending: dict[Future, tuple[str, int]] = {pool.submit(_unit_in_worker, *unit): unit for unit in units}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield pending.pop(future), future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def evaluate_all(evaluation: Evaluation, workers: int
+                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict]]:
+    """Every run over every scenario, in `workers` processes: each run's metrics and the OSPA of
+    every scan (scenarios in order), and the example run's updates of the pictured scenarios by
+    scenario id. Each run's metrics are logged as soon as its last unit is in."""
+    scenarios = evaluation.scenarios
+    plots = sum(len(s.features) for s in scenarios)
+    units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
+                   key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
+    workers = max(1, min(workers, len(units)))
+    parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
+    results, per_scan, examples = {}, {}, {}
+    report = progress_logger(f"evaluate ({workers} worker{'s' if workers > 1 else ''})")
+    for done, ((name, index), result) in enumerate(completed_units(evaluation, units, workers), start=1):
+        parts[name][index] = result
+        report(done, len(units))
+        if len(parts[name]) == len(scenarios):
+            finished = parts.pop(name)
+            ordered = [finished[i] for i in range(len(scenarios))]
+            results[name] = run_metrics(ordered, plots)
+            per_scan[name] = np.concatenate([r.scan_ospa for r in ordered])
+            examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
+                             if r.updates is not None})
+            log.info("evaluate %s: %s", name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
+    return ({name: results[name] for name in evaluation.runs}, {name: per_scan[name] for name in evaluation.runs},
+            examples)
+
+
 def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, reports_dir: Path) -> None:
     from lightning.pytorch.loggers import MLFlowLogger
 
     split = params.evaluate.split
-    plots = io.read_parquet(simulated_dir / split / "plots.parquet", simulate.PLOT_SCHEMA)
-    route_table = io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA)
-    truth_table = io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA)
-    models = load_tracker_models(models_dir, params, [run.method for run in params.evaluate.runs]
-                                 + [ORACLE for method in params.evaluate.references if method == ORACLE])
-    scenarios = load_scenarios(plots, route_table, truth_table)
+    evaluation = prepare(params, simulated_dir, routes_dir, models_dir)
+    scenarios = evaluation.scenarios
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment)
 
-    results, examples, per_scan = {}, {}, {}
-    for name, track in tracker_runs(params, models).items():
-        results[name], updates, per_scan[name] = evaluate_run(name, track, scenarios, params)
-        log.info("evaluate %s: %s", name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
-        if name == params.evaluate.example_run:
-            examples = updates
+    results, per_scan, examples = evaluate_all(evaluation, params.workers)
     first = results[params.evaluate.runs[0].name]
     metrics = {"runs": results, "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}

@@ -16,9 +16,10 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import cli, geodesy, io
+from pipeline import classical_filters, cli, geodesy, io
 from pipeline.evaluate_stage import load_tracker_models
 from pipeline.tracker.estimators import NetworkEstimator
+from pipeline.tracker.kalman import KalmanEstimator, MahalanobisGate
 from pipeline.tracker.run import track_plots
 from pipeline.tracker.tracks import LiveTracks, Track, status
 from pipeline.track_command import run_track, track_recording
@@ -130,6 +131,13 @@ def test_straight_noisy_target_stays_one_track_with_via(models, params):
     assert np.unique(updates["track_id"]).tolist() == [0]
     states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])
     assert np.linalg.norm(states[10:] - true[10:, 1:4], axis=1).max() < 1000.0
+
+
+@pytest.mark.parametrize("method", (*METHODS, "oracle"))
+def test_no_plots_give_no_updates(method, models, params):
+    updates = run(np.empty((0, 5)), np.empty(0, dtype=np.int64), method, models, params)
+    assert all(len(values) == 0 for values in updates.values())
+    assert updates["position_covariance"].shape == (0, 3, 3)
 
 
 # ----------------------------------------------------------------------------- 1b: clutter alone
@@ -463,9 +471,6 @@ def test_mia_tracks_a_recording_without_scenario_ids(recording, params, models_d
 def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params):
     """The classical gate: after 10 plots of a straight flight the Kalman prediction takes the 11th plot
     (normalised error below 1) and rejects the same plot moved 5 km east (infinite error)."""
-    from pipeline.tracker.kalman import KalmanEstimator, MahalanobisGate
-    from pipeline.tracker.tracks import Track
-
     features = tf.straight_features(params.radar, (60e3, -40e3, 9000.0), (200.0, 50.0, 0.0), 11)
     estimator = KalmanEstimator(params.radar, tf.untuned_filters(params)["cv"])
     track = Track(0, [features[0]], [features[0]], [0])
@@ -477,3 +482,66 @@ def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params)
     moved[1:4] += 5000.0 * geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg)[0]
     assert gate([track], features[10]).errors[0] < 1.0
     assert np.isinf(gate([track], moved).errors[0])
+
+
+def noisy_turning_flight(params, rng: np.random.Generator) -> np.ndarray:
+    """[t, x, y, z, r] plots of a 220 m/s flight turning at 2 deg/s, 50 m noise, one scan missed."""
+    elapsed = np.delete(np.arange(16) * tf.SCAN_S, 7)
+    heading = np.radians(2.0) * elapsed
+    enu = np.column_stack([80e3 + 220.0 / np.radians(2.0) * (1.0 - np.cos(heading)),
+                           -30e3 + 220.0 / np.radians(2.0) * np.sin(heading), np.full(len(elapsed), 9000.0)])
+    return tf.enu_to_features(tf.T0 + elapsed, enu + rng.normal(0.0, 50.0, enu.shape), params.radar)
+
+
+@pytest.mark.parametrize("kind", classical_filters.KINDS)
+def test_classical_estimator_gives_filterpys_estimates_step_by_step(params, kind):
+    """The tracker's per-track filters (NumPy arrays stepped with `pipeline.batch_filters`) against
+    filterpy's objects (`pipeline.classical_filters`): at every plot of a turning flight, the
+    prediction the gate scores with and the state and covariance after the update are filterpy's
+    to floating-point rounding; the IMM's prediction is its own predicted density (c-bar mixing)."""
+    settings = tf.untuned_filters(params)[kind]
+    measured = np.ix_(settings.measured, settings.measured)
+    features = noisy_turning_flight(params, np.random.default_rng(21))
+    estimator = KalmanEstimator(params.radar, settings)
+    track = Track(0, [features[0]], [features[0]], [0])
+    reference = classical_filters.start_filter(settings, features[0, 1:4],
+                                               estimator.measurement_covariance(features[0, 1:4]))
+    for previous, plot in zip(features[:-1], features[1:]):
+        positions, covariances = estimator.predicted_positions([track], plot[0])
+        state, covariance = classical_filters.predicted_gaussian(reference, settings, plot[0] - previous[0])
+        np.testing.assert_allclose(positions[0], state[settings.measured], rtol=1e-12, atol=1e-6)
+        np.testing.assert_allclose(covariances[0], covariance[measured], rtol=1e-9, atol=1e-6)
+        updated = estimator.update(track, plot, None)
+        track.plots.append(plot)
+        track.states.append(updated)
+        classical_filters.advance(reference, settings, plot[0] - previous[0])
+        classical_filters.update(reference, plot[1:4], estimator.measurement_covariance(plot[1:4]))
+        state, covariance = classical_filters.posterior(reference)
+        np.testing.assert_allclose(updated[1:4], state[settings.measured], rtol=1e-12, atol=1e-6)
+        assert updated[0] == plot[0] and updated[4] == pytest.approx(np.linalg.norm(updated[1:4] - estimator.site))
+        np.testing.assert_allclose(estimator.position_covariance(track), covariance[measured], rtol=1e-9, atol=1e-6)
+
+
+def test_classical_gate_scores_stacked_tracks_as_each_alone(params):
+    """The gate predicts all candidate tracks of a plot in one batch: the same errors and predictions
+    as scoring each track alone, for tracks of different ages and times (the youngest, last updated
+    a minute before the plot in a turn, rejects it)."""
+    settings = tf.untuned_filters(params)["imm"]
+    estimator = KalmanEstimator(params.radar, settings)
+    gate = MahalanobisGate(estimator, params.tracker.kalman_gate_probability)
+    rng = np.random.default_rng(4)
+    tracks = []
+    for track_id, plots in enumerate((3, 6, 11)):
+        features = noisy_turning_flight(params, rng)[:plots]
+        track = Track(track_id, [features[0]], [features[0]], [0])
+        for plot in features[1:]:
+            track.states.append(estimator.update(track, plot, None))
+            track.plots.append(plot)
+        tracks.append(track)
+    plot = noisy_turning_flight(params, rng)[11]
+    together = gate(tracks, plot)
+    alone = [gate([track], plot) for track in tracks]
+    np.testing.assert_allclose(together.errors, [scores.errors[0] for scores in alone], rtol=1e-12)
+    np.testing.assert_allclose(together.predictions, np.vstack([scores.predictions for scores in alone]),
+                               rtol=1e-12)
+    assert np.isinf(together.errors[0]) and np.isfinite(together.errors[1:]).all()

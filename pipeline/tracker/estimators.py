@@ -8,7 +8,7 @@ forward pass. Inputs are built from the tracks' histories as the training window
   padded by repeating its first state (dt = 0) in front, as the thesis does.
 - filter: the last 10 plots [t, x, y, z, r]; the last row of its output is the new state.
 
-A different estimator (a Kalman filter, say) only has to offer `predict` and `update`.
+A different estimator (a Kalman filter, say) only has to offer `update`, and what its gate needs.
 """
 
 from __future__ import annotations
@@ -59,13 +59,17 @@ class NetworkEstimator:
         windows, padded = self.state_windows(tracks, times)
         return self.predict_windows(windows), padded
 
-    def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray | None) -> np.ndarray:
         """New state after associating `plot` (not yet added to the track's plots).
 
         With `filter_plots` plots, the new one included, the filter network denoises the last
         ones; before that the state is the mean of the prediction and the plot (position and range).
+        `predicted` is the gate's prediction at the plot's time, or None when the gate made none
+        (the young-track radius), then the predictor runs here if needed.
         """
         if len(track.plots) + 1 < self.filter_plots:
+            if predicted is None:
+                predicted = self.predict([track], np.array([plot[0]]))[0][0]
             state = 0.5 * (predicted + plot)
             state[0] = plot[0]
             return state

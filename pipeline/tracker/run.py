@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
 
+from pipeline import baselines
 from pipeline.params import CLASSICAL_METHODS, GLOBAL_SUFFIX, Radar, TrackerParams
 from pipeline.tracker.association import (AutoencoderGate, MonteCarloGate, PredictionGate, Scores,
                                            radius_scores)
@@ -87,7 +88,8 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
     methods (and its rotation period by the `_gnn` ones). For `oracle`, pass only the target's plots.
 
     Returns one row per track update (a track's start counts as its first update), and the
-    covariance of each updated position (NaN for the networks, which give none).
+    covariance of each updated position (NaN for the networks, which give none; for the classical
+    methods a start's is its plot's measurement covariance, computed for all starts at once).
     """
     torch.set_num_threads(1)  # batches of a few windows: threads only add contention
     estimator = make_estimator(method, models, radar)
@@ -96,7 +98,8 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
     rows: dict[str, list] = {name: [] for name in (*UPDATE_COLUMNS, "position_covariance")}
     unknown = np.full((3, 3), np.nan)
 
-    def record(index: int, plot_id: int, state: np.ndarray, association: str, error: float) -> None:
+    def record(index: int, plot_id: int, state: np.ndarray, association: str, error: float,
+               covariance: np.ndarray = unknown) -> None:
         track = live.tracks[index]
         rows["track_id"].append(track.track_id)
         rows["time_unix_s"].append(state[0])
@@ -108,8 +111,7 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
         rows["weight"].append(live.weight[index])
         rows["association"].append(association)
         rows["association_error"].append(error)
-        rows["position_covariance"].append(estimator.position_covariance(track)
-                                           if isinstance(estimator, KalmanEstimator) else unknown)
+        rows["position_covariance"].append(covariance)
 
     def start(plot: np.ndarray, plot_id: int) -> None:
         index = live.start(plot, plot_id, params.weight_start, params.silence_s)
@@ -118,16 +120,14 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
     def update(index: int, plot: np.ndarray, plot_id: int, error: float, predicted: np.ndarray | None,
                association: str) -> None:
         track = live.tracks[index]
-        if predicted is None:
-            predicted = estimator.predict([track], np.array([plot[0]]))[0][0]
         state = estimator.update(track, plot, predicted)
         live.associate(index, plot, plot_id, state, params)
-        record(index, plot_id, state, association, error)
+        record(index, plot_id, state, association, error,
+               estimator.position_covariance(track) if isinstance(estimator, KalmanEstimator) else unknown)
 
     if method.endswith(GLOBAL_SUFFIX):
-        scans = np.floor((features[:, 0] - features[0, 0]) / radar.scan_period_s).astype(np.int64) \
-            if len(features) else np.empty(0, np.int64)
-        for members in np.split(np.arange(len(features)), np.flatnonzero(np.diff(scans)) + 1):
+        scans = np.floor((features[:, 0] - features[:1, 0]) / radar.scan_period_s).astype(np.int64)
+        for members in np.split(np.arange(len(features)), np.flatnonzero(np.diff(scans)) + 1) if len(features) else []:
             _track_scan(live, features[members], plot_ids[members], gate, mature_from, window_m, params, start,
                         update, method)
     else:
@@ -144,6 +144,10 @@ def track_plots(features: np.ndarray, plot_ids: np.ndarray, method: str, window_
             update(index, plot, int(plot_id), error, predicted, method if by_method else "radius")
     out = {name: np.asarray(values) for name, values in rows.items()}
     out["position_covariance"] = out["position_covariance"].reshape(-1, 3, 3)
+    if isinstance(estimator, KalmanEstimator):
+        starts = out["association"] == "start"
+        positions = np.column_stack([out[f"{axis}_ecef_m"][starts] for axis in "xyz"])
+        out["position_covariance"][starts] = baselines.measurement_covariance(positions, radar)
     return out
 
 
@@ -189,6 +193,8 @@ def _candidates(live: LiveTracks, plot: np.ndarray, gate: Callable | None, matur
     (inf outside the gate), the method's predictions (NaN rows where none) and which are mature."""
     offset = live.last_state - plot[1:4]
     near = np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < params.prefilter_m ** 2)
+    if not len(near):  # most plots: clutter far from every track
+        return near, np.empty(0), None, np.empty(0, dtype=bool)
     mature = live.plot_count[near] >= mature_from
     errors = np.full(len(near), np.inf)
     predictions: np.ndarray | None = None

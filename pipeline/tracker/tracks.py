@@ -26,7 +26,7 @@ EPSILON = 1e-9
 @dataclass
 class Track:
     """History of one track: states and plots as [t, x, y, z, r] rows (ECEF metres, seconds).
-    `estimate` is whatever a classical estimator keeps per track (a Kalman filter and its time)."""
+    `estimate` is whatever a classical estimator keeps per track (its filter, `kalman.TrackFilter`)."""
 
     track_id: int
     states: list[np.ndarray] = field(default_factory=list)

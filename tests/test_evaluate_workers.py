@@ -1,0 +1,90 @@
+"""The evaluate stage gives the same reports whatever the number of worker processes.
+
+A tiny test split (two routes per strategy, each scenario cut to its first 15 minutes), tiny
+trained networks (tests/tracker_fixtures.py) and the classical filters at their start values,
+evaluated with one run of each kind (network gates, the young-track radius, classical
+nearest and global nearest neighbour) and both references: once in the stage's process, once
+over two worker processes. Everything written must be equal byte for byte, except the speed
+of each run (`plots_per_second`), a timing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from pipeline import io, routes, simulate
+from pipeline.evaluate_stage import run_evaluate
+from tests import tracker_fixtures as tf
+
+# Third-party deprecation notices (Lightning's pytree use), not ours.
+pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.* is deprecated")
+
+KEPT_S = 900.0  # of each scenario: enough for tracks to confirm, and seconds to evaluate
+RUNS = [{"method": "via", "window_m": 4000.0}, {"method": "mia", "window_m": 4000.0},
+        {"method": "ae", "window_m": 5000.0}, {"method": "radius", "window_m": 4000.0},
+        {"method": "kalman_cv", "window_m": 4000.0}, {"method": "imm_gnn", "window_m": 4000.0}]
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
+    """Folders of simulated data, routes and models for a tiny test split."""
+    params = tf.make_params({"routes.splits.test.constant_jerk": 2, "routes.splits.test.random_turns": 2})
+    folder = tmp_path_factory.mktemp("evaluate")
+    split = params.routes.split(params.evaluate.split)
+    route_table = routes.generate_split(params, split)
+    plots, truth = simulate.simulate_split(params, split, route_table)
+    time, scenario = plots.column("time_unix_s").to_numpy(), plots.column("scenario_id").to_numpy()
+    first = {s: time[scenario == s].min() for s in np.unique(scenario)}
+    keep = time <= np.array([first[s] for s in scenario]) + KEPT_S
+    io.write_parquet(plots.filter(pa.array(keep)), folder / "simulated" / split.name / "plots.parquet")
+    io.write_parquet(truth, folder / "simulated" / split.name / "truth.parquet")
+    io.write_parquet(route_table, folder / "routes" / f"{split.name}.parquet")
+    models = folder / "models"
+    models.mkdir()
+    for network in tf.trained_models(tmp_path_factory, "ecef").glob("*.pt"):
+        (models / network.name).write_bytes(network.read_bytes())
+    io.write_json({"cost": "rmse", "filters": {kind: settings.to_dict()
+                                               for kind, settings in tf.untuned_filters(params).items()}},
+                  models / "kalman_tuned.json")
+    return folder / "simulated", folder / "routes", models
+
+
+def evaluate(inputs: tuple[Path, Path, Path], workers: int, reports: Path) -> Path:
+    params = tf.make_params({"routes.splits.test.constant_jerk": 2, "routes.splits.test.random_turns": 2,
+                             "evaluate.runs": RUNS, "evaluate.example_scenarios": 2,
+                             "evaluate.example_run": "via_4000", "compute.workers": workers})
+    run_evaluate(params, *inputs, reports)
+    return reports
+
+
+def files(reports: Path) -> dict[str, bytes]:
+    return {str(path.relative_to(reports)): path.read_bytes() for path in sorted(reports.rglob("*")) if path.is_file()}
+
+
+def without_speeds(metrics: bytes) -> bytes:
+    """The metrics file without its lines of speeds (one per run, each a positive number)."""
+    lines = metrics.splitlines(keepends=True)
+    speeds = [line for line in lines if b'"plots_per_second"' in line]
+    assert len(speeds) == len(json.loads(metrics)["runs"])
+    assert all(float(line.split(b":")[1].strip(b" ,\n")) > 0.0 for line in speeds)
+    return b"".join(line for line in lines if line not in speeds)
+
+
+def test_one_and_two_workers_write_the_same_reports(inputs, tmp_path, monkeypatch):
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    alone = files(evaluate(inputs, 1, tmp_path / "one"))
+    shared = files(evaluate(inputs, 2, tmp_path / "two"))
+    assert sorted(alone) == sorted(shared) == ["ospa_per_scan.png", "tracker_metrics.json", "tracker_tables.md",
+                                               "tracks/scenario_0.png", "tracks/scenario_1.png"]
+    assert without_speeds(alone["tracker_metrics.json"]) == without_speeds(shared.pop("tracker_metrics.json"))
+    metrics = json.loads(alone.pop("tracker_metrics.json"))
+    assert alone == shared
+    # The runs did track: each confirmed tracks on target plots.
+    assert set(metrics["runs"]) == {"via_4000", "mia_4000", "ae_5000", "radius_4000", "kalman_cv_4000",
+                                    "imm_gnn_4000", "plots_reference", "oracle_reference"}
+    assert all(run["NOPA"] > 0 for run in metrics["runs"].values())
