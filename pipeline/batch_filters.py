@@ -6,14 +6,25 @@ thousands of windows. filterpy's objects step one track at a time (~0.3 ms per K
 ~0.9 ms per IMM step here), which would make tuning take hours; the same equations written
 over a batch axis take seconds. The tests check this module against filterpy, step by step.
 
-A batch state holds, for M motion models and B tracks, the states x (M, B, n), covariances
-P (M, B, n, n) and mode probabilities mu (B, M) (M = 1 for a single Kalman filter). The
-update is filterpy's: Joseph-form covariance and Gaussian likelihoods for the IMM, here in
-log space so a far-off plot cannot underflow every model at once.
+A batch state holds, for B tracks and M motion models, the states x (B, M, n), covariances
+P (B, M, n, n) and mode probabilities mu (B, M) (M = 1 for a single Kalman filter, 2 for the
+IMM). The update is filterpy's: Joseph-form covariance and Gaussian likelihoods for the IMM,
+here in log space so a far-off plot cannot underflow every model at once.
+
+Why it is written the way it is: tuning steps ~90 rows through ~1200 steps about a hundred
+times per filter, so a step works on ~90 small matrices per model and its cost is overhead (per
+NumPy call, and per matrix in a stacked product), not arithmetic. `filter_sequences` therefore
+steps every row with one set of calls and repairs the few rows that restart or idle at a step
+afterwards, builds F and Q once per distinct time step (plot times are quantised, so a few dozen
+per evaluation) and gathers them, inverts the 3 x 3 innovation covariances by cofactors, mixes
+the IMM's two models in closed form, and combines the models' estimates for all steps at once
+after the loop. The results equal the step-by-step formulation (the tests' filterpy) to
+floating-point rounding.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,9 +32,19 @@ import numpy as np
 from pipeline import motion_models
 from pipeline.classical_filters import FilterSettings
 
+CHUNK_CELLS = 2 ** 14  # F and Q are tabulated for the distinct time steps of about this many (step, row) cells at once
+LOG_NORMALISER = 3 * np.log(2 * np.pi)  # of a 3-dimensional Gaussian density
+
+# Cofactor C[r, c] = S[r+1, c+1] S[r+2, c+2] - S[r+1, c+2] S[r+2, c+1] (indices mod 3) of a 3 x 3 matrix,
+# as four gathers from the flattened matrix (rows: the four factors; columns: r * 3 + c).
+_COFACTOR_INDEX = np.array([[3 * ((r + a) % 3) + (c + b) % 3 for r in range(3) for c in range(3)]
+                            for a, b in ((1, 1), (2, 2), (1, 2), (2, 1))])
+
 
 @dataclass
 class BatchState:
+    """States x (B, M, n), covariances P (B, M, n, n) and mode probabilities mu (B, M) of B tracks."""
+
     x: np.ndarray
     P: np.ndarray
     mu: np.ndarray
@@ -34,99 +55,147 @@ def start(settings: FilterSettings, positions: np.ndarray, covariances: np.ndarr
     pairs = [motion_models.initial_state(model, positions, covariances, settings.velocity_std_mps,
                                          settings.acceleration_std_mps2) for model in settings.models]
     probabilities = settings.initial_probabilities() if settings.kind == "imm" else np.ones(1)
-    return BatchState(np.stack([x for x, _ in pairs]), np.stack([p for _, p in pairs]),
+    return BatchState(np.stack([x for x, _ in pairs], axis=1), np.stack([p for _, p in pairs], axis=1),
                       np.tile(probabilities, (len(positions), 1)))
 
 
+def _motion(settings: FilterSettings, dt: np.ndarray) -> np.ndarray:
+    """Each model's transition F and process noise Q over dt of any shape: (*dt.shape, 2, M, n, n), F then Q."""
+    return np.stack([np.stack([motion_models.transition(model, dt) for model in settings.models], axis=-3),
+                     np.stack([motion_models.process_noise(model, dt, noise)
+                               for model, noise in zip(settings.models, settings.noise_std)], axis=-3)], axis=-4)
+
+
+def _motion_per_step(settings: FilterSettings, dt: np.ndarray) -> Iterator[np.ndarray]:
+    """F and Q (B, 2, M, n, n) for each step of dt (T, B) seconds, in step order.
+
+    Tabulated for the distinct values of dt over chunks of steps and gathered per step: building
+    them per step would cost ~20 NumPy calls per step, tabulating them all at once as much memory
+    as (T, B) matrices."""
+    steps = max(1, CHUNK_CELLS // dt.shape[1])
+    for first in range(0, len(dt), steps):
+        values, codes = np.unique(dt[first:first + steps], return_inverse=True)
+        table = _motion(settings, values)
+        for code in codes.reshape(-1, dt.shape[1]):
+            yield table[code]
+
+
 def _mixed(settings: FilterSettings, state: BatchState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IMM mixing: each model's starting state and covariance, and the predicted mode probabilities."""
+    """IMM mixing: each model's starting state and covariance, and the predicted mode probabilities.
+
+    IMMEstimator's mixing, x0_j = sum_i w_ij x_i and P0_j = sum_i w_ij (P_i + d_ij d_ij') with
+    d_ij = x_i - x0_j, where w_ij = T_ij mu_i / cbar_j; for two models, whose weights w_0j + w_1j
+    are 1, the second sum is sum_i w_ij P_i + w_0j w_1j (x_0 - x_1)(x_0 - x_1)'."""
     if settings.kind != "imm":
         return state.x, state.P, state.mu
     transition = settings.transition_probabilities()
-    cbar = state.mu @ transition                                        # (B, M)
-    omega = transition[None] * state.mu[:, :, None] / cbar[:, None, :]  # (B, i, j)
-    x = np.einsum("bij,ibn->jbn", omega, state.x)
-    offset = state.x[:, None] - x[None]                                 # (i, j, B, n)
-    P = np.einsum("bij,ijbnm->jbnm", omega, state.P[:, None] + offset[..., :, None] * offset[..., None, :])
-    return x, P, cbar
+    cbar = state.mu @ transition                                                    # (B, M)
+    weight = transition.T * state.mu[:, None, :] / cbar[:, :, None]                 # w_ij at [b, j, i]
+    spread = state.x[:, 0] - state.x[:, 1]                                          # (B, n)
+    B, M, n = state.x.shape
+    P = (weight @ state.P.reshape(B, M, n * n)).reshape(state.P.shape) + \
+        (weight[:, :, 0] * weight[:, :, 1])[:, :, None, None] * (spread[:, None, :, None] * spread[:, None, None, :])
+    return weight @ state.x, P, cbar
 
 
-def predict(settings: FilterSettings, state: BatchState, dt: np.ndarray) -> BatchState:
-    """Each track dt (B,) seconds ahead; mu becomes the predicted mode probabilities."""
+def _predicted(settings: FilterSettings, state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
+    """Each track moved by its models' F and Q (B, M, n, n); mu becomes the predicted mode probabilities."""
     x, P, probabilities = _mixed(settings, state)
-    xs, Ps = [], []
-    for index, (model, noise) in enumerate(zip(settings.models, settings.noise_std)):
-        F = motion_models.transition(model, dt)
-        xs.append(np.einsum("bnm,bm->bn", F, x[index]))
-        Ps.append(F @ P[index] @ np.swapaxes(F, -1, -2) + motion_models.process_noise(model, dt, noise))
-    return BatchState(np.stack(xs), np.stack(Ps), probabilities)
+    return BatchState((F @ x[..., None])[..., 0], F @ P @ np.swapaxes(F, -1, -2) + Q, probabilities)
 
 
-def update(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray) -> BatchState:
-    """Each track updated with its measurement z (B, 3) of covariance R (B, 3, 3)."""
-    H = motion_models.measurement_matrix(settings.models[0])
-    measured = settings.measured
-    innovation = z[None] - state.x[..., measured]                                  # (M, B, 3)
-    S = state.P[..., measured, :][..., :, measured] + R[None]                      # (M, B, 3, 3)
-    gain = np.swapaxes(np.linalg.solve(S, state.P[..., measured, :]), -1, -2)      # P H' S^-1
-    x = state.x + np.einsum("mbnk,mbk->mbn", gain, innovation)
-    identity = np.eye(H.shape[1])
-    joseph = identity - gain @ H
-    P = joseph @ state.P @ np.swapaxes(joseph, -1, -2) + gain @ R[None] @ np.swapaxes(gain, -1, -2)
+def inverse3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse (..., 3, 3) and determinant (...) of 3 x 3 matrices S (..., 3, 3) by cofactors:
+    one gather and a few products instead of a LAPACK call per matrix, which costs more than the
+    arithmetic at this size. Singular matrices give inf or NaN entries, no error."""
+    flat = S.reshape(*S.shape[:-2], 9)
+    factors = flat[..., _COFACTOR_INDEX]                                            # (..., 4, 9)
+    cofactor = factors[..., 0, :] * factors[..., 1, :] - factors[..., 2, :] * factors[..., 3, :]
+    determinant = (flat[..., :3] * cofactor[..., :3]).sum(axis=-1)
+    return np.swapaxes(cofactor.reshape(S.shape), -1, -2) / determinant[..., None, None], determinant
+
+
+def _updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray) -> BatchState:
+    """Each track updated with its measurement z (B, 3) of covariance R (B, 3, 3): Joseph form, and
+    for the IMM the mode probabilities from the models' log-likelihoods.
+
+    H only picks x, y, z out of the state, so H P is rows of P, and the Joseph form
+    (I - K H) P (I - K H)' + K R K' is evaluated as J P + (K R - J P H') K' with J P = P - K (H P)."""
+    position = slice(None, None, state.x.shape[-1] // 3)  # x, y, z lead their axis's block of the state
+    R = R[:, None]                                                                  # (B, 1, 3, 3)
+    HP = state.P[..., position, :]                                                  # (B, M, 3, n)
+    innovation = z[:, None] - state.x[..., position]                                # (B, M, 3)
+    S_inverse, S_determinant = inverse3(HP[..., position] + R)                     # (B, M, 3, 3), (B, M)
+    gain_T = S_inverse @ HP                                                         # K' = S^-1 H P: (B, M, 3, n)
+    gain = np.swapaxes(gain_T, -1, -2)
+    x = state.x + (innovation[..., None, :] @ gain_T)[..., 0, :]
+    JP = state.P - gain @ HP
+    P = JP + (gain @ R - JP[..., :, position]) @ gain_T
     mu = state.mu
     if settings.kind == "imm":
-        distance = np.einsum("mbk,mbk->mb", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
-        log_likelihood = -0.5 * (distance + np.linalg.slogdet(S)[1] + 3 * np.log(2 * np.pi))
-        log_weight = np.log(state.mu.T) + log_likelihood
-        log_weight -= log_weight.max(axis=0)
-        weight = np.exp(log_weight)
-        mu = (weight / weight.sum(axis=0)).T
+        distance = (innovation[..., None, :] @ S_inverse @ innovation[..., :, None])[..., 0, 0]  # (B, M)
+        log_weight = np.log(state.mu) - 0.5 * (distance + np.log(S_determinant) + LOG_NORMALISER)
+        weight = np.exp(log_weight - log_weight.max(axis=1, keepdims=True))
+        mu = weight / weight.sum(axis=1, keepdims=True)
     return BatchState(x, P, mu)
 
 
-def combined(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
-    """The mode-weighted state (B, n) and covariance (B, n, n)."""
-    x = np.einsum("bm,mbn->bn", state.mu, state.x)
-    offset = state.x - x[None]
-    P = np.einsum("bm,mbnk->bnk", state.mu, state.P + offset[..., :, None] * offset[..., None, :])
-    return x, P
+def _combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mode-weighted mean (..., k) and covariance (..., k, k) of the models' means x (..., M, k)
+    and covariances P (..., M, k, k) with probabilities mu (..., M)."""
+    models = range(mu.shape[-1])
+    mean = sum(mu[..., m, None] * x[..., m, :] for m in models)
+    offsets = [x[..., m, :] - mean for m in models]
+    return mean, sum(mu[..., m, None, None] * (P[..., m, :, :] + offsets[m][..., :, None] * offsets[m][..., None, :])
+                     for m in models)
 
 
-def select(mask: np.ndarray, chosen: BatchState, other: BatchState) -> BatchState:
-    """Per track: `chosen` where mask (B,) is true, else `other`."""
-    return BatchState(np.where(mask[None, :, None], chosen.x, other.x),
-                      np.where(mask[None, :, None, None], chosen.P, other.P),
-                      np.where(mask[:, None], chosen.mu, other.mu))
+def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, tracks: np.ndarray | slice) -> None:
+    """Tracks `rows` of `state` become the tracks `tracks` of `source` (in place)."""
+    state.x[rows], state.P[rows], state.mu[rows] = source.x[tracks], source.P[tracks], source.mu[tracks]
 
 
 def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray,
                      valid: np.ndarray, restart: np.ndarray) -> tuple[np.ndarray, np.ndarray, BatchState]:
-    """Filter B measurement sequences side by side: times (B, T), positions (B, T, 3),
-    covariances (B, T, 3, 3). Invalid steps (padding) are skipped; at `restart` steps a track
+    """Filter B measurement sequences side by side: times (B, T) seconds, positions (B, T, 3) metres,
+    covariances (B, T, 3, 3) m^2. Invalid steps (padding) are skipped; at `restart` steps a track
     starts afresh from the measurement. Returns the filtered positions (B, T, 3) and their
     covariances (B, T, 3, 3), NaN at invalid steps, and the state after each track's last step."""
     B, T = times.shape
-    measured = settings.measured
-    state = start(settings, positions[:, 0], covariances[:, 0])
-    last_time = times[:, 0].copy()
-    out_x = np.full((B, T, 3), np.nan)
-    out_P = np.full((B, T, 3, 3), np.nan)
-    for step in range(T):
-        fresh = valid[:, step] & restart[:, step]
-        moving = valid[:, step] & ~restart[:, step]
-        started = start(settings, positions[:, step], covariances[:, step])
-        dt = np.where(moving, times[:, step] - last_time, 0.0)
-        updated = update(settings, predict(settings, state, dt), positions[:, step], covariances[:, step])
-        state = select(fresh, started, select(moving, updated, state))
-        last_time = np.where(valid[:, step], times[:, step], last_time)
-        x, P = combined(state)
-        out_x[valid[:, step], step] = x[valid[:, step]][:, measured]
-        out_P[valid[:, step], step] = P[valid[:, step]][:, measured][:, :, measured]
-    return out_x, out_P, state
+    moving = valid & ~restart
+    # Each step's time since the row's previous valid step (times[:, 0] when there is none).
+    previous = np.maximum.accumulate(np.where(valid, np.arange(T), 0), axis=1)
+    previous = np.concatenate([np.zeros((B, 1), dtype=previous.dtype), previous[:, :-1]], axis=1)
+    dt = np.where(moving, times - np.take_along_axis(times, previous, axis=1), 0.0).T          # (T, B)
+    z, R = np.ascontiguousarray(np.swapaxes(positions, 0, 1)), np.ascontiguousarray(np.swapaxes(covariances, 0, 1))
+    # Steps where some row does not predict and update: it restarts, or keeps its state (padding).
+    repaired = ~moving.all(axis=0)
+    fresh_steps, fresh_rows = np.nonzero((valid & restart).T)
+    started = start(settings, z[fresh_steps, fresh_rows], R[fresh_steps, fresh_rows])   # every restart, in step order
+    fresh_bounds = np.searchsorted(fresh_steps, np.arange(T + 1))
+
+    state = start(settings, z[0], R[0])
+    M, n = state.mu.shape[1], state.x.shape[-1]
+    position = slice(None, None, n // 3)
+    model_x, model_P, model_mu = np.empty((T, B, M, 3)), np.empty((T, B, M, 3, 3)), np.empty((T, B, M))
+    for step, motion in enumerate(_motion_per_step(settings, dt)):
+        updated = _updated(settings, _predicted(settings, state, motion[:, 0], motion[:, 1]), z[step], R[step])
+        if repaired[step]:
+            idle, cells = ~valid[:, step], slice(fresh_bounds[step], fresh_bounds[step + 1])
+            _overwrite(updated, idle, state, idle)                                  # padding: the state stays
+            _overwrite(updated, fresh_rows[cells], started, cells)
+        state = updated
+        model_x[step], model_P[step], model_mu[step] = state.x[..., position], state.P[..., position, position], \
+            state.mu
+    x, P = _combined(model_mu, model_x, model_P)                                    # (T, B, 3), (T, B, 3, 3)
+    invalid = ~valid.T
+    x[invalid], P[invalid] = np.nan, np.nan
+    return np.ascontiguousarray(np.swapaxes(x, 0, 1)), np.ascontiguousarray(np.swapaxes(P, 0, 1)), state
 
 
 def predict_positions(settings: FilterSettings, state: BatchState, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted positions (B, 3) and covariances (B, 3, 3) dt seconds ahead."""
-    x, P = combined(predict(settings, state, dt))
-    measured = settings.measured
-    return x[:, measured], P[:, measured][:, :, measured]
+    """Predicted positions (B, 3) and covariances (B, 3, 3) dt (B,) seconds ahead."""
+    motion = _motion(settings, dt)
+    predicted = _predicted(settings, state, motion[:, 0], motion[:, 1])
+    position = slice(None, None, predicted.x.shape[-1] // 3)
+    return _combined(predicted.mu, predicted.x[..., position], predicted.P[..., position, position])

@@ -3,12 +3,21 @@
 Writes `models/kalman_tuned.json` (what the tracker and the comparison load) only when every
 filter tuned; `reports/kalman_tuning.json` has each filter's cost, error and NEES before and
 after. One MLflow run records the same.
+
+The three filters tune independently, so with `compute.workers` > 1 they run in that many
+worker processes (spawned, not forked: the parent may hold threads), the IMM first because it
+takes about as long as the other two together. Every filter gets the same inputs whatever the
+number of workers and the results are gathered by kind, so the outputs do not depend on it
+(only the `seconds` in the report do). The workers' log lines go through the stage's logging.
 """
 
 from __future__ import annotations
 
 import logging
+import logging.handlers
+import multiprocessing
 import time
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from pipeline import experiment_tracking, io, simulate, tuning
@@ -17,12 +26,74 @@ from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
 
+LONGEST_FIRST = ("imm", "ca", "cv")  # submission order: each worker takes the next when it is free
+
 
 def start_settings(kind: str, params: Params) -> FilterSettings:
     """The filter as params describe it before tuning."""
     k = params.kalman
     return FilterSettings(kind, k.noise_std[kind], k.velocity_std_mps, k.acceleration_std_mps2,
                           k.imm_switch_probability, k.imm_initial_cv_probability)
+
+
+def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, max_iterations: int
+                ) -> tuple[FilterSettings, dict]:
+    """One filter tuned (`tuning.tune`): the tuned settings and its entry of reports/kalman_tuning.json,
+    with the seconds it took. Runs in a worker process or in the stage's own."""
+    began = time.perf_counter()
+    settings, before, after, evaluations = tuning.tune(start, material, cost, max_iterations)
+    return settings, {
+        "noise_std": list(settings.noise_std), "velocity_std_mps": settings.velocity_std_mps,
+        "at_search_bound": tuning.at_bounds(start, settings),
+        "cost_before": before.cost(cost), "cost_after": after.cost(cost),
+        "before": before.to_dict(), "after": after.to_dict(), "cost_evaluations": evaluations,
+        "seconds": time.perf_counter() - began}
+
+
+def _log_tuned(kind: str, entry: dict) -> None:
+    after = entry["after"]
+    log.info("tune_kalman %s: cost %.4g -> %.4g, RMSE %.1f m (plots %.1f m), ANEES %.3f (95 %% bounds %.3f-%.3f), "
+             "noise %s, velocity spread %.1f m/s, %d evaluations, %.1f s", kind, entry["cost_before"],
+             entry["cost_after"], after["rmse_m"], after["plot_rmse_m"], after["anees"], *after["anees_bounds"],
+             [round(v, 4) for v in entry["noise_std"]], entry["velocity_std_mps"], entry["cost_evaluations"],
+             entry["seconds"])
+
+
+def _log_through(queue: multiprocessing.Queue, level: int) -> None:
+    """Worker initializer: send every log record at `level` or above to the stage's process."""
+    root = logging.getLogger()
+    root.handlers[:] = [logging.handlers.QueueHandler(queue)]
+    root.setLevel(level)
+
+
+def tune_all(params: Params, material: tuning.Sequences) -> dict[str, tuple[FilterSettings, dict]]:
+    """Every filter kind tuned (`tune_filter`), by kind in KINDS order, in `params.workers` processes.
+
+    Raises the TuningError of the first kind (in KINDS order) that failed, after all have finished."""
+    tasks = {kind: (start_settings(kind, params), material, params.kalman.cost, params.kalman.max_iterations)
+             for kind in KINDS}
+    if params.workers == 1:
+        results = {}
+        for kind in KINDS:
+            results[kind] = tune_filter(*tasks[kind])
+            _log_tuned(kind, results[kind][1])
+        return results
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    listener = logging.handlers.QueueListener(queue, *logging.getLogger().handlers, respect_handler_level=True)
+    listener.start()
+    try:
+        with ProcessPoolExecutor(min(params.workers, len(KINDS)), mp_context=context, initializer=_log_through,
+                                 initargs=(queue, log.getEffectiveLevel())) as pool:
+            futures: dict[str, Future] = {kind: pool.submit(tune_filter, *tasks[kind])
+                                          for kind in sorted(KINDS, key=LONGEST_FIRST.index)}
+            kinds = {future: kind for kind, future in futures.items()}
+            for future in as_completed(kinds):
+                if future.exception() is None:
+                    _log_tuned(kinds[future], future.result()[1])
+            return {kind: futures[kind].result() for kind in KINDS}
+    finally:
+        listener.stop()
 
 
 def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir: Path) -> None:
@@ -33,27 +104,13 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
     material = tuning.target_sequences(plots, params.radar, params.kalman.restart_gap_s, params.kalman.burn_in_updates)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment)
-    log.info("tune_kalman: %d target plots of %s, %d scored, cost %s", int(material.valid.sum()), plots_path,
-             int(material.scored.sum()), params.kalman.cost)
+    log.info("tune_kalman: %d target plots of %s, %d scored, cost %s, %d worker processes", int(material.valid.sum()),
+             plots_path, int(material.scored.sum()), params.kalman.cost, min(params.workers, len(KINDS)))
 
-    tuned, report = {}, {"cost": params.kalman.cost, "split": params.kalman.split, "filters": {}}
-    for kind in KINDS:
-        start = time.perf_counter()
-        settings, before, after, evaluations = tuning.tune(start_settings(kind, params), material,
-                                                           params.kalman.cost, params.kalman.max_iterations)
-        tuned[kind] = settings
-        report["filters"][kind] = {
-            "noise_std": list(settings.noise_std), "velocity_std_mps": settings.velocity_std_mps,
-            "at_search_bound": tuning.at_bounds(start_settings(kind, params), settings),
-            "cost_before": before.cost(params.kalman.cost), "cost_after": after.cost(params.kalman.cost),
-            "before": before.to_dict(), "after": after.to_dict(), "cost_evaluations": evaluations,
-            "seconds": time.perf_counter() - start}
-        log.info("tune_kalman %s: cost %.4g -> %.4g, RMSE %.1f m (plots %.1f m), ANEES %.3f (95 %% bounds %.3f-%.3f), "
-                 "noise %s, velocity spread %.1f m/s, %d evaluations", kind, before.cost(params.kalman.cost),
-                 after.cost(params.kalman.cost), after.rmse_m, after.plot_rmse_m, after.anees, *after.anees_bounds,
-                 [round(v, 4) for v in settings.noise_std], settings.velocity_std_mps, evaluations)
-
-    io.write_json({"cost": params.kalman.cost, "filters": {kind: s.to_dict() for kind, s in tuned.items()}},
+    results = tune_all(params, material)
+    report = {"cost": params.kalman.cost, "split": params.kalman.split,
+              "filters": {kind: entry for kind, (_, entry) in results.items()}}
+    io.write_json({"cost": params.kalman.cost, "filters": {kind: s.to_dict() for kind, (s, _) in results.items()}},
                   models_dir / "kalman_tuned.json")
     io.write_json(report, reports_dir / "kalman_tuning.json")
 

@@ -133,12 +133,13 @@ def assess(settings: FilterSettings, material: Sequences) -> Assessment:
                                                                material.restart)
     error = (estimates - material.truth)[material.scored]
     spread = covariances[material.scored]
-    try:
-        np.linalg.cholesky(spread)
-    except np.linalg.LinAlgError:
+    inverse, determinant = batch_filters.inverse3(spread)
+    # Positive definite: the leading principal minors are positive (Sylvester; NaN fails too).
+    minor = spread[:, 0, 0] * spread[:, 1, 1] - spread[:, 0, 1] * spread[:, 1, 0]
+    if not ((spread[:, 0, 0] > 0) & (minor > 0) & (determinant > 0)).all():
         raise TuningError(f"{settings.kind}: a position covariance is not positive definite with noise "
-                          f"{settings.noise_std} and velocity spread {settings.velocity_std_mps}") from None
-    nees = np.einsum("ni,ni->n", error, np.linalg.solve(spread, error[:, :, None])[:, :, 0])
+                          f"{settings.noise_std} and velocity spread {settings.velocity_std_mps}")
+    nees = (inverse * error[:, :, None] * error[:, None, :]).sum(axis=(1, 2))
     samples = len(nees)
     if not samples:
         raise TuningError("no plots past the burn-in to tune on")

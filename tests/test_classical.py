@@ -359,6 +359,35 @@ def test_tuning_that_does_not_converge_raises_with_the_values_reached(material):
         tuning.tune(start, material, "rmse", 1)
 
 
+
+@pytest.mark.parametrize("bad", ["negative", "nan"])
+def test_assessment_rejects_a_covariance_that_is_not_positive_definite(material, monkeypatch, bad):
+    """A filtered position covariance that is not positive definite (here one with a negative
+    eigenvalue, or NaN) at one scored plot makes `assess` raise TuningError naming the filter."""
+    filter_sequences = batch_filters.filter_sequences
+
+    def spoilt(*args):
+        x, P, state = filter_sequences(*args)
+        row, step = np.argwhere(material.scored)[len(np.argwhere(material.scored)) // 2]
+        P[row, step] = np.diag([1e4, -1.0, 1e4]) if bad == "negative" else np.nan
+        return x, P, state
+
+    monkeypatch.setattr(batch_filters, "filter_sequences", spoilt)
+    with pytest.raises(tuning.TuningError, match=r"cv: a position covariance is not positive definite"):
+        tuning.assess(settings("cv", (5.0,)), material)
+
+
+def test_inverse3_is_the_inverse_and_determinant():
+    """`batch_filters.inverse3` (cofactors) gives numpy's inverse and determinant of 3 x 3 covariances
+    like the filters' (metres^2, correlated), batched over leading axes."""
+    rng = np.random.default_rng(4)
+    factor = rng.normal(size=(4, 5, 3, 3)) * [300.0, 50.0, 20.0]
+    S = factor @ np.swapaxes(factor, -1, -2) + np.eye(3)
+    inverse, determinant = batch_filters.inverse3(S)
+    np.testing.assert_allclose(inverse, np.linalg.inv(S), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(determinant, np.linalg.det(S), rtol=1e-9)
+
+
 # ----------------------------------------------------------------------------- OSPA
 
 def test_ospa_of_hand_computed_cases():
@@ -511,3 +540,26 @@ def test_tune_stage_that_does_not_converge_saves_nothing(simulated_split, make_p
         run_tune(make_params(1, {"kalman.max_iterations": 1}), simulated, tmp_path / "models", tmp_path / "reports")
     assert not (tmp_path / "models" / "kalman_tuned.json").exists()
     assert not (tmp_path / "reports" / "kalman_tuning.json").exists()
+
+
+def test_tune_stage_gives_the_same_files_with_one_and_two_workers(simulated_split, make_params, tracking_uri,
+                                                                  tmp_path, monkeypatch, caplog):
+    """compute.workers = 1 tunes the three filters in the stage's process, 2 in two spawned worker
+    processes: models/kalman_tuned.json is byte for byte the same, and so is reports/kalman_tuning.json
+    but for each filter's `seconds`. The workers' progress lines reach the stage's log."""
+    _, simulated = simulated_split
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", tracking_uri)
+    outputs = {}
+    for workers in (1, 2):
+        folder = tmp_path / f"workers-{workers}"
+        with caplog.at_level("INFO", logger="pipeline"):
+            run_tune(make_params(1, {"compute.workers": workers}), simulated, folder / "models", folder / "reports")
+        report = json.loads((folder / "reports" / "kalman_tuning.json").read_text())
+        for entry in report["filters"].values():
+            assert entry.pop("seconds") > 0
+        outputs[workers] = (folder / "models" / "kalman_tuned.json").read_bytes(), report
+    assert outputs[1][0] == outputs[2][0]
+    assert outputs[1][1] == outputs[2][1]
+    heads = {(record.getMessage().split(":")[0], record.processName == "MainProcess") for record in caplog.records}
+    assert {(f"tune_kalman {kind}", True) for kind in classical_filters.KINDS} <= heads  # each result as it arrives
+    assert {(f"tune {kind}", False) for kind in classical_filters.KINDS} <= heads       # progress, from the workers
