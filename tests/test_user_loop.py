@@ -189,7 +189,9 @@ def test_exp_run_shows_in_exp_show_params_diff_and_metrics_diff(tiny_run: TinyRu
     commit = next(entry for entry in shown if entry["rev"] != "workspace")["data"]
     experiment = experiment_data(shown, "faster-predictor")
     predictor_params = [data["params"]["params.yaml"]["data"]["training"]["predictor"] for data in (commit, experiment)]
-    assert [params["learning_rate"] for params in predictor_params] == [0.001, 0.002]
+    committed = tiny_run.params["training"]["predictor"]["learning_rate"]
+    assert committed != 0.002
+    assert [params["learning_rate"] for params in predictor_params] == [committed, 0.002]
     losses = [data["metrics"]["reports/models/predictor.json"]["data"]["final_train_loss"]
               for data in (commit, experiment)]
     assert losses[0] != losses[1]
