@@ -11,10 +11,11 @@ $(BIN)/activate:
 	$(PYTHON) -m venv $(VENV)
 
 # torch is installed first and pinned: a bare `torch` would pull a multi-GB CUDA build.
-$(VENV)/.installed: $(BIN)/activate pyproject.toml
+# constraints.txt pins every other package to the versions the committed results were made with.
+$(VENV)/.installed: $(BIN)/activate pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -c constraints.txt -e '.[dev]'
 	touch $@
 
 env: $(VENV)/.installed

@@ -8,8 +8,8 @@ Trainer, as the training stage runs it (in-memory tensor batches, MLflow off):
 - forward: the GRU layers and the dense head (forward pass and MSE loss);
 - backward: autograd through them;
 - optimiser: Adam's update;
-- Lightning: the rest of a Trainer step (hooks, closure, loss bookkeeping), the Trainer's
-  time per step less the bare step.
+- Lightning: the rest of a Trainer step (hooks, closure, loss bookkeeping, and the epoch's
+  validation pass spread over its steps), the Trainer's time per step less the bare step.
 
 It then prints the epochs the committed run trained (`reports/models/<network>.json`) and
 what they cost at the measured speed. Needs `dvc repro windows` first.
@@ -82,7 +82,7 @@ def main() -> None:
     logging.getLogger("lightning").setLevel(logging.ERROR)
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)
     params = load_params(args.params)
-    print("ms per step | data | forward | backward | optimiser | Lightning | whole step | per epoch | "
+    print("ms per step | data | forward | backward | optimiser | Lightning and validation | whole step | per epoch | "
           "epochs trained | training")
     total = 0.0
     for kind in ("filter", "predictor", "autoencoder"):
