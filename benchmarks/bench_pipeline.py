@@ -20,7 +20,6 @@ Run it on an otherwise idle machine: the stages use both cores.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shutil
@@ -37,21 +36,7 @@ REPOSITORY = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPOSITORY))
 
 from pipeline import io  # noqa: E402  (the repository's package, whichever folder this runs from)
-
-
-def fresh_copy(destination: Path) -> Path:
-    """The files a fresh clone has (tracked, or untracked and not ignored), in a new git repository."""
-    listing = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
-                             cwd=REPOSITORY, capture_output=True, text=True, check=True).stdout
-    for name in filter(None, listing.split("\0")):
-        source = REPOSITORY / name
-        if source.is_file():
-            (destination / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(source, destination / name)
-    git = ["git", "-c", "user.name=bench", "-c", "user.email=bench@example.invalid"]
-    for command in (["git", "init", "-q"], [*git, "add", "-A"], [*git, "commit", "-q", "-m", "fresh copy"]):
-        subprocess.run(command, cwd=destination, check=True)
-    return destination
+from tests.project import copy_repository  # noqa: E402  (a fresh clone's files in a new git repository)
 
 
 def timed(command: list[str], cwd: Path, env: dict[str, str], log: Path) -> tuple[float, float, int]:
@@ -81,7 +66,7 @@ def main() -> None:
 
     folder = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
     try:
-        copy = fresh_copy(folder / "repository")
+        copy = copy_repository(folder / "repository")
         if args.params:
             shutil.copyfile(args.params, copy / "params.yaml")
         stages = list(yaml.safe_load((copy / "dvc.yaml").read_text())["stages"])

@@ -16,7 +16,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 
 from pipeline import baselines, batch_filters, figures, io, materials, model_eval, windows
 from pipeline.classical_filters import FilterSettings, load_settings

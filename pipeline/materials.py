@@ -25,7 +25,7 @@ import pyarrow as pa
 
 from pipeline import io
 from pipeline.params import Windows
-from pipeline.scaling import PLOT_FEATURES, STATE_FEATURES, WindowScaler, plot_scaler, state_scaler
+from pipeline.scaling import WindowScaler, plot_scaler, state_scaler
 from pipeline.windows import TargetPlots, balance, gather, linearity, long_table, state_features, window_starts
 
 HOLDOUT_SCHEMA = io.schema(
