@@ -332,6 +332,23 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
     assert Path(png).read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
 
 
+def test_train_command_prints_each_lightning_line_once_and_no_advertising(chain, tmp_path):
+    """Lightning's own lines come once, in the pipeline's log format (its package handler used to
+    print each a second time), and its tips for paid services are not printed."""
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline", "train", "--params", "params.yaml", "--kind", "predictor",
+         "--windows", "windows", "--models", str(tmp_path / "models"), "--reports", str(tmp_path / "reports")],
+        cwd=chain, env={**environment(), "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"},
+        capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    lightning = [line.split(" INFO ", 1)[1] for line in lines if " lightning." in line and " INFO " in line]
+    assert any("max_epochs=" in message for message in lightning)
+    assert len(lightning) == len(set(lightning)), lightning
+    assert not [line for line in lines if line.startswith("INFO:")]
+    assert "Tip:" not in result.stderr and "litlogger" not in result.stderr
+
+
 def test_git_commit_tag_names_the_commit_of_the_code_that_ran(trained):
     """The git_commit tag is this repository's HEAD even when the command runs in another folder."""
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True,
@@ -364,6 +381,17 @@ def local_store(tmp_path, monkeypatch) -> Path:
     path = tmp_path / "mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{path}")
     return path
+
+
+def test_impossible_schedule_is_refused_before_any_mlflow_run(chain, tmp_path, caplog, local_store, no_training):
+    """A patience longer than the run: exit 2 naming the key and value, no MLflow store touched."""
+    tree = tiny_params_tree()
+    tree["training"]["filter"]["early_stopping_patience"] = 5
+    params = write_params(tree, tmp_path / "params.yaml")
+    code, log = train_command(caplog, params, "filter", chain / "windows", tmp_path)
+    assert code == 2
+    assert "training.filter.early_stopping_patience = 5: above training.filter.epochs = 2" in log
+    assert not (tmp_path / "models").exists() and not local_store.exists()
 
 
 def test_missing_windows_file_is_named(chain, tmp_path, caplog, local_store, no_training):
