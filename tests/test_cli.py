@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +80,21 @@ def test_interrupted_write_leaves_no_file(tmp_path: Path) -> None:
             temporary.write_bytes(b"half a file")
             raise RuntimeError("killed half-way")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_write_gives_the_users_file_mode(tmp_path: Path) -> None:
+    """A new output gets what a plain open() would give (0666 less the umask), not the temporary
+    file's private 0600; an output that is replaced keeps the mode its owner gave it."""
+    previous = os.umask(0o022)
+    try:
+        fresh = tmp_path / "metrics.json"
+        io.write_json({"a": 1}, fresh)
+        assert stat.S_IMODE(fresh.stat().st_mode) == 0o644
+        fresh.chmod(0o640)
+        io.write_json({"a": 2}, fresh)
+        assert stat.S_IMODE(fresh.stat().st_mode) == 0o640
+    finally:
+        os.umask(previous)
 
 
 def test_readme_tables_match_reports() -> None:
