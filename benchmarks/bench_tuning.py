@@ -23,7 +23,7 @@ import yaml
 
 from pipeline import io, simulate, tuning
 from pipeline.classical_filters import KINDS
-from pipeline.params import load_params
+from pipeline.params import load_params, load_params_tree
 from pipeline.tune_stage import start_settings
 
 
@@ -45,7 +45,7 @@ def evaluation_seconds(params_path: str, repeat: int) -> dict[str, float]:
 
 def stage_seconds(params_path: str, workers: int, folder: Path) -> tuple[float, dict]:
     """Wall seconds of the stage in a fresh process with compute.workers = `workers`, and its report."""
-    tree = yaml.safe_load(Path(params_path).read_text())
+    tree = load_params_tree(params_path)
     tree["compute"]["workers"] = workers
     params = folder / f"params-{workers}.yaml"
     params.write_text(yaml.safe_dump(tree))

@@ -8,6 +8,7 @@ writes anything, with a message naming the key and the value (``radar.latitude_d
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -615,17 +616,38 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
     )
 
 
-def load_params(path: str | Path = "params.yaml") -> Params:
-    """Read and validate a params file; errors name the file, the key and the value."""
+class ParamsLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, reading floats as YAML 1.2 does.
+
+    DVC writes params.yaml as YAML 1.2: `dvc exp run -S training.predictor.learning_rate=0.000001`
+    gives `learning_rate: 1e-06`, which YAML 1.1 (PyYAML) takes for a string. Every float
+    YAML 1.2 accepts (1e-06, 2e-3, 1E-4, -.5, 5.) is read as a float here; plain integers still
+    resolve as integers, because the float pattern needs a point or an exponent."""
+
+
+ParamsLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)$"),
+    list("-+0123456789."))
+
+
+def load_params_tree(path: str | Path = "params.yaml") -> dict[str, Any]:
+    """The params file as a plain tree, read as DVC reads it (see ParamsLoader), not validated."""
     path = Path(path)
     try:
-        tree = yaml.safe_load(path.read_text())
+        tree = yaml.load(path.read_text(), Loader=ParamsLoader)
     except FileNotFoundError:
         raise ParamError(f"{path}: params file not found") from None
     except yaml.YAMLError as error:
         raise ParamError(f"{path}: not valid YAML ({error})") from None
     if not isinstance(tree, Mapping):
         raise ParamError(f"{path}: must hold a mapping of sections, got {type(tree).__name__}")
+    return tree
+
+
+def load_params(path: str | Path = "params.yaml") -> Params:
+    """Read and validate a params file; errors name the file, the key and the value."""
+    tree = load_params_tree(path)
     try:
         return parse_params(tree)
     except ParamError as error:

@@ -8,18 +8,17 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import pytest
-import yaml
 
-from pipeline.params import Params, parse_params
+from pipeline.params import Params, load_params_tree, parse_params
 from tests.servers import repro_tiny_pipeline
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
-_DEFAULT_TREE = yaml.safe_load(PARAMS_YAML.read_text())
+_DEFAULT_TREE = load_params_tree(PARAMS_YAML)
 
 
 @pytest.fixture
 def params_tree() -> dict[str, Any]:
-    """The default params.yaml as read by yaml.safe_load; a fresh copy for each test to edit."""
+    """The default params.yaml as the stages read it (load_params_tree); a fresh copy for each test to edit."""
     return copy.deepcopy(_DEFAULT_TREE)
 
 

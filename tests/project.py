@@ -12,11 +12,13 @@ from typing import Any
 
 import yaml
 
+from pipeline.params import load_params_tree
+
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 
 def default_params_tree() -> dict[str, Any]:
-    return yaml.safe_load((REPOSITORY / "params.yaml").read_text())
+    return load_params_tree(REPOSITORY / "params.yaml")
 
 
 def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:

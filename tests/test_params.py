@@ -92,3 +92,22 @@ def test_load_params_names_the_file(params_tree, tmp_path):
         load_params(path)
     with pytest.raises(ParamError, match="not found"):
         load_params(tmp_path / "missing.yaml")
+
+
+def test_learning_rate_as_dvc_writes_it_is_a_float(params_tree, tmp_path):
+    """`dvc exp run -S training.predictor.learning_rate=0.000001` writes `learning_rate: 1e-06`
+    (YAML 1.2: no point before the exponent), which YAML 1.1 would read as a string."""
+    text = yaml.safe_dump(params_tree, sort_keys=False).replace("learning_rate: 0.005", "learning_rate: 1e-06")
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    assert load_params(path).training.networks["predictor"].learning_rate == 1e-06
+
+
+@pytest.mark.parametrize("written, value", [("1e-06", 1e-06), ("2e-3", 0.002), ("1E-4", 1e-4), (".5", 0.5),
+                                            ("-1.5e+3", -1500.0), ("-.5", -0.5)])
+def test_yaml_1_2_floats_are_floats(params_tree, tmp_path, written, value):
+    """Every way YAML 1.2 (DVC's YAML) writes a float is read as that float."""
+    text = yaml.safe_dump(params_tree, sort_keys=False).replace("reference_snr_db: 16.0", f"reference_snr_db: {written}")
+    path = tmp_path / "params.yaml"
+    path.write_text(text)
+    assert load_params(path).radar.reference_snr_db == value

@@ -11,7 +11,7 @@ import mlflow
 import pytest
 import yaml
 
-from pipeline.params import parse_params
+from pipeline.params import ParamsLoader, parse_params
 from tests.project import REPOSITORY, copy_repository, environment, tiny_params_tree, write_params
 
 MARKER = "<!-- walkthrough -->"
@@ -76,7 +76,7 @@ def test_readme_thesis_schedule_command_sets_the_thesis_schedule(params_tree) ->
         for parent in parents:
             node = node[parent]
         assert key in node, f"{dotted}: not a key of params.yaml"
-        node[key] = yaml.safe_load(value)
+        node[key] = yaml.load(value, Loader=ParamsLoader)  # DVC reads a -S value as YAML 1.2
     networks = parse_params(params_tree).training.networks
     thesis = {"filter": (500, 128), "predictor": (500, 128), "autoencoder": (400, 64)}
     for kind, (epochs, batch) in thesis.items():
