@@ -7,12 +7,13 @@ writes anything, with a message naming the key and the value (``radar.latitude_d
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import yaml
 
@@ -228,6 +229,60 @@ class Params:
     kalman: Kalman
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
+
+
+class _Section(Mapping):
+    """A mapping of the params tree that remembers which of its keys the parser read.
+
+    The parser's reads are the one list of known keys: whatever it never read is a key nobody
+    uses (a misspelt `sigma_rnage_m` beside the real `sigma_range_m`, which would otherwise
+    leave the run on the old value without a word). Iterating a section reads all of its
+    keys, because the parser iterates only sections whose keys the user names (aircraft
+    types, splits, aircraft mixes)."""
+
+    def __init__(self, tree: Mapping[Any, Any], path: str) -> None:
+        self._tree = tree
+        self._path = path
+        self._values = {key: _tracked(value, f"{path}.{key}" if path else str(key)) for key, value in tree.items()}
+        self._read: set[Any] = set()
+
+    def __getitem__(self, key: Any) -> Any:
+        value = self._values[key]
+        self._read.add(key)
+        return value
+
+    def __iter__(self) -> Iterator[Any]:
+        self._read.update(self._values)
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __repr__(self) -> str:
+        return repr(self._tree)
+
+    def unread(self) -> list[str]:
+        """'<path> = <value>: unknown key (did you mean <nearest read key>?)' for every key never read."""
+        problems = []
+        for key, value in self._values.items():
+            if key in self._read:
+                for child in value if isinstance(value, list) else [value]:
+                    if isinstance(child, _Section):
+                        problems += child.unread()
+                continue
+            near = difflib.get_close_matches(str(key), [str(known) for known in self._read], n=1)
+            hint = f"did you mean {near[0]}?" if near else f"known: {', '.join(sorted(map(str, self._read)))}"
+            path = f"{self._path}.{key}" if self._path else str(key)
+            problems.append(f"{path} = {self._tree[key]!r}: unknown key ({hint})")
+        return problems
+
+
+def _tracked(value: Any, path: str) -> Any:
+    if isinstance(value, Mapping):
+        return _Section(value, path)
+    if isinstance(value, list):
+        return [_tracked(item, f"{path}[{index}]") for index, item in enumerate(value)]
+    return value
 
 
 def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
@@ -591,7 +646,9 @@ def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:
-    """Validate a params tree (as read from YAML) and return typed params."""
+    """Validate a params tree (as read from YAML) and return typed params; a key the parser
+    never reads is an error, so that a misspelt key cannot leave a run on the old value."""
+    tree = _Section(tree, "")
     radar = _radar(_get(tree, "radar", "params"))
     aircraft_tree = _get(tree, "aircraft", "params")
     if not isinstance(aircraft_tree, Mapping) or not aircraft_tree:
@@ -601,7 +658,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
     windows = _windows(_get(tree, "windows", "params"))
     routes = _routes(_get(tree, "routes", "params"), aircraft, radar)
     report = _get(tree, "report", "params")
-    return Params(
+    params = Params(
         radar=radar,
         aircraft=aircraft,
         routes=routes,
@@ -614,6 +671,10 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )
+    unknown = tree.unread()
+    if unknown:
+        raise ParamError("; ".join(unknown))
+    return params
 
 
 class ParamsLoader(yaml.SafeLoader):

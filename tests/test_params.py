@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 import yaml
 
 from pipeline.params import STRATEGIES, ParamError, load_params, parse_params
+from tests.project import run_pipeline, write_params
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
 
@@ -111,3 +113,34 @@ def test_yaml_1_2_floats_are_floats(params_tree, tmp_path, written, value):
     path = tmp_path / "params.yaml"
     path.write_text(text)
     assert load_params(path).radar.reference_snr_db == value
+
+
+@pytest.mark.parametrize("key, near", [("radar.sigma_rnage_m", "sigma_range_m"),
+                                       ("training.predictor.learning_rte", "learning_rate"),
+                                       ("routes.splits.test.sede", "seed")])
+def test_misspelt_key_beside_the_real_one_is_named_with_the_nearest_known_key(params_tree, key, near):
+    """A misspelt key left beside the real one would leave the run on the real key's value without a
+    word: it is an error that names the key, its value and the key the user probably meant."""
+    set_key(params_tree, key, 400.0)
+    with pytest.raises(ParamError, match=rf"^{re.escape(key)} = 400.0: unknown key \(did you mean {near}\?\)$"):
+        parse_params(params_tree)
+
+
+def test_user_named_entries_are_not_unknown_keys(params_tree):
+    """Aircraft types, splits and their mixes are named by the user: a new one is read, not refused."""
+    params_tree["aircraft"]["glider"] = dict(params_tree["aircraft"]["light"])
+    params_tree["routes"]["splits"]["extra"] = {**params_tree["routes"]["splits"]["test"], "seed": 9009}
+    params_tree["routes"]["splits"]["extra"]["aircraft_mix"] = {"glider": 1.0}
+    params = parse_params(params_tree)
+    assert "glider" in params.aircraft and params.routes.split("extra").aircraft_mix == {"glider": 1.0}
+
+
+def test_unknown_key_stops_the_command_with_exit_2(params_tree, tmp_path):
+    """From the command line an unknown key is exit 2 and one line naming the file and the key,
+    before anything is written."""
+    params_tree["radar"]["sigma_rnage_m"] = 400.0
+    path = write_params(params_tree, tmp_path / "params.yaml")
+    result = run_pipeline("routes", "--params", str(path), "--out", str(tmp_path / "routes"))
+    assert result.returncode == 2
+    assert f"{path}: radar.sigma_rnage_m = 400.0: unknown key (did you mean sigma_range_m?)" in result.stderr
+    assert not (tmp_path / "routes").exists()
