@@ -2,13 +2,15 @@
 
 Every output is written to a temporary file beside its destination and renamed into
 place, so an interrupted stage never leaves a half file that the next stage (or DVC)
-would take for a result.
+would take for a result. A writer killed outright (SIGKILL, the OOM killer) cannot remove
+its temporary; the next write of the same destination does, so leftovers never pile up.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -39,16 +41,40 @@ def _mode_for(destination: Path) -> int:
         return 0o666 & ~umask
 
 
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` runs on this machine; another user's process counts as running."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_stale_temporaries(destination: Path) -> None:
+    """Remove the temporaries of `destination` whose writer is dead, named
+    `.<name>.<pid>.<random>.tmp`; a live writer's (another process still writing) is left alone."""
+    pattern = re.compile(rf"\.{re.escape(destination.name)}\.(\d+)\.[^.]+\.tmp")
+    for candidate in destination.parent.iterdir():
+        match = pattern.fullmatch(candidate.name)
+        if match and not process_alive(int(match.group(1))):
+            candidate.unlink(missing_ok=True)
+
+
 @contextmanager
 def atomic_path(destination: str | Path) -> Iterator[Path]:
     """Yield a temporary path to write to; it replaces `destination` only if the block succeeds.
 
-    The new file gets the mode a plain `open` would give it (0666 less the umask), or the mode of
-    the file it replaces: mkstemp's private 0600 would otherwise hide outputs from a team's
-    other accounts."""
+    The temporary's name carries the writer's pid, so that the next write of `destination`
+    can tell a killed writer's leftover from a live one's and remove it. The new file gets the
+    mode a plain `open` would give it (0666 less the umask), or the mode of the file it
+    replaces: mkstemp's private 0600 would otherwise hide outputs from a team's other accounts."""
     destination = Path(destination)
     destination.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.", suffix=".tmp", dir=destination.parent)
+    _remove_stale_temporaries(destination)
+    handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.{os.getpid()}.", suffix=".tmp",
+                                         dir=destination.parent)
     os.close(handle)
     try:
         yield Path(temporary)

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import os
+import signal
 import stat
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +16,7 @@ import pytest
 
 from pipeline import io
 from pipeline.cli import COMMANDS
-from tests.project import run_pipeline, tiny_params_tree, write_params
+from tests.project import REPOSITORY, run_pipeline, tiny_params_tree, write_params
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -95,6 +98,40 @@ def test_atomic_write_gives_the_users_file_mode(tmp_path: Path) -> None:
         assert stat.S_IMODE(fresh.stat().st_mode) == 0o640
     finally:
         os.umask(previous)
+
+
+def _writer_in_the_middle_of_a_write(destination: Path) -> tuple[subprocess.Popen, Path]:
+    """Another process inside `atomic_path(destination)`, stopped half-way, and its temporary file."""
+    writer = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from pipeline import io\n"
+         "with io.atomic_path(sys.argv[1]) as temporary:\n"
+         "    temporary.write_bytes(b'half a file'); print(temporary, flush=True); time.sleep(60)",
+         str(destination)], stdout=subprocess.PIPE, text=True, cwd=REPOSITORY)
+    return writer, Path(writer.stdout.readline().strip())
+
+
+def test_next_write_removes_the_temporary_of_a_killed_writer(tmp_path: Path) -> None:
+    """A writer killed with SIGKILL cannot clean up; the next write of the same output removes
+    what it left, and nothing but the output stays in the folder."""
+    destination = tmp_path / "holdout.parquet"
+    writer, temporary = _writer_in_the_middle_of_a_write(destination)
+    writer.send_signal(signal.SIGKILL)
+    writer.wait()
+    assert temporary.exists()
+    io.write_text("whole file", destination)
+    assert sorted(tmp_path.iterdir()) == [destination]
+
+
+def test_next_write_keeps_the_temporary_of_a_live_writer(tmp_path: Path) -> None:
+    """Another process still writing the same output keeps its temporary file."""
+    destination = tmp_path / "holdout.parquet"
+    writer, temporary = _writer_in_the_middle_of_a_write(destination)
+    try:
+        io.write_text("whole file", destination)
+        assert sorted(tmp_path.iterdir()) == sorted([destination, temporary])
+    finally:
+        writer.kill()
+        writer.wait()
 
 
 def test_readme_tables_match_reports() -> None:
