@@ -286,7 +286,7 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
     evaluation = prepare(params, simulated_dir, routes_dir, models_dir)
     scenarios = evaluation.scenarios
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment)
+    experiment_tracking.check_tracking_store(uri, params.training.experiment, "evaluate")
 
     results, per_scan, examples = evaluate_all(evaluation, params.workers)
     first = results[params.evaluate.runs[0].name]
@@ -307,7 +307,7 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
         io.write_bytes(png, reports_dir / "tracks" / f"scenario_{scenario_id}.png")
 
     logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="evaluate", tracking_uri=uri,
-                          tags={"stage": "evaluate", "git_commit": experiment_tracking.git_commit(),
+                          tags={**experiment_tracking.run_tags("evaluate"),
                                 "input_data_sha256": experiment_tracking.data_hash(
                                     simulated_dir / split / "plots.parquet", *sorted(models_dir.glob("*.pt")))})
     logger.log_hyperparams({"runs": [run.name for run in params.evaluate.runs], "split": split,

@@ -140,9 +140,9 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
     scaler = window_scaler(kind, params, windows_dir / "scalers.json")
     config = network_config(kind, params)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment)
+    experiment_tracking.check_tracking_store(uri, params.training.experiment, f"train_{kind}")
     logger = MLFlowLogger(experiment_name=params.training.experiment, run_name=f"train_{kind}", tracking_uri=uri,
-                          tags={"stage": f"train_{kind}", "git_commit": experiment_tracking.git_commit(),
+                          tags={**experiment_tracking.run_tags(f"train_{kind}"),
                                 "input_data_sha256": experiment_tracking.data_hash(material),
                                 "mlflow.source.name": "python -m pipeline train"})
     log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), logger.run_id, uri)

@@ -103,7 +103,7 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
     plots = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)
     material = tuning.target_sequences(plots, params.radar, params.kalman.restart_gap_s, params.kalman.burn_in_updates)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment)
+    experiment_tracking.check_tracking_store(uri, params.training.experiment, "tune_kalman")
     log.info("tune_kalman: %d target plots of %s, %d scored, cost %s, %d worker processes", int(material.valid.sum()),
              plots_path, int(material.scored.sum()), params.kalman.cost, min(params.workers, len(KINDS)))
 
@@ -116,8 +116,7 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
 
     mlflow.set_tracking_uri(uri)
     mlflow.set_experiment(params.training.experiment)
-    with mlflow.start_run(run_name="tune_kalman", tags={"stage": "tune_kalman",
-                                                          "git_commit": experiment_tracking.git_commit(),
+    with mlflow.start_run(run_name="tune_kalman", tags={**experiment_tracking.run_tags("tune_kalman"),
                                                           "input_data_sha256": experiment_tracking.data_hash(plots_path)}):
         mlflow.log_params({f"kalman.{key}": value for key, value in vars(params.kalman).items()})
         mlflow.log_metrics({f"{kind}.{name}": float(values[name]) for kind, values in report["filters"].items()
