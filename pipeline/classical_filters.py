@@ -19,12 +19,15 @@ density; filterpy's `x_prior` weights them with the last posterior ones instead.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 
 import numpy as np
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
 from pipeline import motion_models
+from pipeline.io import InputError
 
 KINDS = ("cv", "ca", "imm")
 MODELS = {"cv": ("cv",), "ca": ("ca",), "imm": ("cv9", "ca")}
@@ -75,15 +78,75 @@ class FilterSettings:
         return cls(**{**values, "noise_std": tuple(values["noise_std"])})
 
 
+SETTINGS_KEYS = tuple(field.name for field in fields(FilterSettings))
+PROBABILITY_KEYS = ("switch_probability", "initial_cv_probability")
+SPREAD_KEYS = ("velocity_std_mps", "acceleration_std_mps2")
+
+
 def load_settings(path) -> dict[str, FilterSettings]:
-    """The tuned filters saved by the tune stage, by kind."""
+    """The tuned filters saved by the tune stage, by kind, every value checked.
+
+    The file may be edited by hand or damaged, and a filter takes any number: a negative
+    probability or spread does not fail, it changes every track silently. So each of the three
+    filters must be there with every key of `FilterSettings`, its probabilities in [0, 1] and its
+    standard deviations finite and above 0; otherwise InputError names the file, the filter, the
+    key and the value."""
     try:
-        saved = json.loads(open(path).read())
-        return {kind: FilterSettings.from_dict(values) for kind, values in saved["filters"].items()}
+        saved = json.loads(Path(path).read_text())
     except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no tuned Kalman filters; run `dvc repro tune_kalman`") from None
-    except (KeyError, TypeError, ValueError) as error:
-        raise ValueError(f"{path}: not a tuned-filter file ({error})") from None
+        raise InputError(f"{path}: no tuned Kalman filters; run `dvc repro tune_kalman`") from None
+    except ValueError as error:  # not JSON, or not UTF-8
+        raise InputError(f"{path}: not a tuned-filter file ({error})") from None
+    filters = saved.get("filters") if isinstance(saved, dict) else None
+    if not isinstance(filters, dict):
+        raise InputError(f"{path}: not a tuned-filter file (no 'filters' object)")
+    for kind in filters:
+        if kind not in KINDS:
+            raise InputError(f"{path}: filter {kind!r}: unknown (the tune stage saves {', '.join(KINDS)})")
+    missing = [kind for kind in KINDS if kind not in filters]
+    if missing:
+        raise InputError(f"{path}: filter {missing[0]!r}: missing (the tune stage saves {', '.join(KINDS)})")
+    return {kind: _checked_settings(path, kind, filters[kind]) for kind in KINDS}
+
+
+def _checked_settings(path, kind: str, values: object) -> FilterSettings:
+    """One filter of a tuned-filter file, refused unless it is one the tune stage could have saved."""
+    where = f"{path}: filter {kind!r}"
+    if not isinstance(values, dict):
+        raise InputError(f"{where} = {values!r}: must be an object with the keys {', '.join(SETTINGS_KEYS)}")
+    for key in SETTINGS_KEYS:
+        if key not in values:
+            raise InputError(f"{where}: key {key!r} missing")
+    for key in values:
+        if key not in SETTINGS_KEYS:
+            raise InputError(f"{where}: key {key!r}: unknown (known: {', '.join(SETTINGS_KEYS)})")
+    if values["kind"] != kind:
+        raise InputError(f"{where}, kind = {values['kind']!r}: must be {kind!r}, the filter it is saved under")
+    noise, count = values["noise_std"], len(MODELS[kind])
+    if not isinstance(noise, list) or len(noise) != count:
+        raise InputError(f"{where}, noise_std = {noise!r}: must list {count} standard deviation(s), one per "
+                         f"motion model {MODELS[kind]}")
+    for index, value in enumerate(noise):
+        _check_spread(f"{where}, noise_std[{index}]", value)
+    for key in SPREAD_KEYS:
+        _check_spread(f"{where}, {key}", values[key])
+    for key in PROBABILITY_KEYS:
+        value = values[key]
+        if not _is_number(value) or not 0.0 <= value <= 1.0:
+            raise InputError(f"{where}, {key} = {value!r}: must be a probability in [0, 1]")
+    return FilterSettings.from_dict(values)
+
+
+def _is_number(value: object) -> bool:
+    """A finite JSON number: Python's json reads NaN and Infinity, and true and false are ints to it."""
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) or (isinstance(value, float) and math.isfinite(value))
+
+
+def _check_spread(where: str, value: object) -> None:
+    if not _is_number(value) or value <= 0.0:
+        raise InputError(f"{where} = {value!r}: must be a finite standard deviation above 0")
 
 
 def _kalman(model: str, state: np.ndarray, covariance: np.ndarray) -> KalmanFilter:

@@ -159,10 +159,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
     networks = _read_json(reports_dir / "models.json", "models_report")
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
-    try:
-        filters = load_settings(models_dir / "kalman_tuned.json")
-    except (FileNotFoundError, ValueError) as error:
-        raise io.InputError(str(error)) from None
+    filters = load_settings(models_dir / "kalman_tuned.json")
     holdout_path = windows_dir / "holdout.parquet"
     holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA))
     held = holdout_comparison(holdout, filters, params)

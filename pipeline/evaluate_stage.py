@@ -73,11 +73,7 @@ def load_tracker_models(models_dir: Path, params: Params, methods: list[str]) ->
         loaded[kind] = model
     filters = {}
     if any(classical_kind(method) for method in methods):
-        path = models_dir / "kalman_tuned.json"
-        try:
-            filters = classical_filters.load_settings(path)
-        except (FileNotFoundError, ValueError) as error:
-            raise io.InputError(str(error)) from None
+        filters = classical_filters.load_settings(models_dir / "kalman_tuned.json")
     return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"), params.tracker.inference, filters)
 
 
