@@ -6,6 +6,17 @@ at a team server instead, with no other change. The store is checked before any 
 starts, so an unreachable server fails in seconds with its address in the message rather
 than after an hour of training.
 
+A store kept on this machine (a SQLite file, or MLflow's file store) holds its runs' artifacts
+beside itself, so that a workspace's runs, with their model files, stay in that workspace:
+- a relative path in its URI is the repository's, also for the stages of a queued or `--temp`
+  experiment, which DVC runs in a temporary copy of the repository that it deletes afterwards
+  (mlflow.db is git-ignored, so the copy has none: runs logged there would be lost);
+- the experiment is created with its artifact location in the store's folder, wherever the
+  stage runs from (MLflow's default is `./mlruns` of the current folder);
+- an experiment whose artifact location is elsewhere (the store was copied from another folder,
+  and MLflow records absolute paths) is refused, naming both folders: its new runs would write
+  their model files into the other folder, and MLflow cannot move an experiment's location.
+
 A stage killed outright (SIGKILL, the OOM killer, power loss) cannot end its run, which would
 stay RUNNING for good. Every run is tagged with the host and pid of the process behind it, and
 when a stage starts it marks KILLED the RUNNING runs of the same stage on this host whose
@@ -21,6 +32,8 @@ import socket
 import subprocess
 from pathlib import Path
 from typing import TYPE_CHECKING
+from urllib.parse import unquote, urlparse
+from urllib.request import pathname2url
 
 from pipeline.io import InputError, process_alive
 
@@ -35,24 +48,103 @@ class TrackingError(RuntimeError):
 
 
 def tracking_uri(default: str) -> str:
-    return os.environ.get("MLFLOW_TRACKING_URI") or default
+    """MLFLOW_TRACKING_URI, else `default`; a local store's relative path made absolute in the
+    repository the stage belongs to, not in DVC's temporary copy of it."""
+    uri = os.environ.get("MLFLOW_TRACKING_URI") or default
+    path = _local_store_path(uri)
+    if path is None or path.is_absolute():
+        return uri
+    absolute = _in_original_repository(Path.cwd().resolve() / path)
+    if uri.startswith("sqlite:"):
+        return "sqlite:///" + pathname2url(str(absolute)) + "".join(uri.partition("?")[1:])
+    return absolute.as_uri()
+
+
+def _local_store_path(uri: str) -> Path | None:
+    """The SQLite file or file-store folder of a store on this machine, as the URI writes it
+    (relative or not); None for a server or an in-memory database."""
+    if uri.startswith("sqlite:///"):
+        path = unquote(uri[len("sqlite:///"):].partition("?")[0])
+        return Path(path) if path not in ("", ":memory:") else None
+    parsed = urlparse(uri)
+    if parsed.scheme == "file" and parsed.netloc in ("", "localhost"):
+        return Path(unquote(parsed.path))
+    return Path(uri) if parsed.scheme == "" else None
+
+
+def _in_original_repository(path: Path) -> Path:
+    """`path`, if it lies in a temporary copy DVC made of the repository to run an experiment
+    (queued, or `--temp`), moved to the same place in the repository the copy was made from.
+
+    In a stage's command DVC sets DVC_ROOT to the root of the repository that ran or queued it,
+    also in a temporary copy; the stage's own repository is the nearest folder up with a `.dvc`
+    folder. When they differ, the stage runs in a copy."""
+    original = os.environ.get("DVC_ROOT")
+    here = Path.cwd().resolve()
+    workspace = next((folder for folder in (here, *here.parents) if (folder / ".dvc").is_dir()), None)
+    if not original or workspace is None or workspace == Path(original).resolve():
+        return path
+    return Path(os.path.normpath(Path(original).resolve() / os.path.relpath(path, workspace)))
+
+
+def _store_folder(uri: str) -> Path | None:
+    """The folder a store on this machine keeps its runs' artifacts in: the SQLite file's
+    folder, or the file store itself; None for a server."""
+    path = _local_store_path(uri)
+    if path is None:
+        return None
+    return path.absolute().parent if uri.startswith("sqlite:") else path.absolute()
 
 
 def check_tracking_store(uri: str, experiment: str, stage: str) -> None:
-    """Fail fast, naming the URI, if the store cannot be reached or written; then close the runs
-    of `stage` that killed processes on this host left RUNNING."""
+    """Fail fast, naming the URI, if the store cannot be reached or written, or if it would put
+    the runs' artifacts outside a local store's folder; then close the runs of `stage` that
+    killed processes on this host left RUNNING."""
     os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
     os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "10")
     import mlflow
 
+    folder = _store_folder(uri)
     try:
         client = mlflow.MlflowClient(tracking_uri=uri)
         found = client.get_experiment_by_name(experiment)
-        experiment_id = found.experiment_id if found else client.create_experiment(experiment)
+        if found is None:
+            # A SQLite store's default would be ./mlruns of wherever this stage runs from.
+            location = str(folder / "mlruns" / experiment) if uri.startswith("sqlite:") else None
+            experiment_id = client.create_experiment(experiment, artifact_location=location)
+        else:
+            experiment_id = found.experiment_id
+            if folder is not None:
+                _check_artifacts_in_store_folder(uri, folder, experiment, found.artifact_location)
         _close_killed_runs(client, experiment_id, stage)
+    except TrackingError:
+        raise
     except Exception as error:  # mlflow raises many types for an unreachable or broken store
         raise TrackingError(f"MLflow tracking store {uri!r} cannot be used: {type(error).__name__}: "
                             f"{str(error).splitlines()[0] if str(error) else ''}") from None
+
+
+def _check_artifacts_in_store_folder(uri: str, folder: Path, experiment: str, location: str) -> None:
+    """Refuse a local store whose experiment keeps its artifacts outside the store's folder.
+
+    MLflow records the experiment's artifact location as an absolute path when it creates the
+    experiment, and derives every new run's from it: in a copy of a workspace (cp -a, rsync, a
+    backup restored elsewhere) the copied store would send new runs' model files into the
+    original folder, or fail if that is gone. The location cannot be changed afterwards, so the
+    stage stops, before any training, with the three ways out."""
+    parsed = urlparse(location)
+    if parsed.scheme not in ("", "file"):
+        return  # an artifact server or a bucket: reached the same way from every copy
+    artifacts = Path(unquote(parsed.path) if parsed.scheme == "file" else location)
+    if artifacts.resolve().is_relative_to(folder.resolve()):
+        return
+    store = _local_store_path(uri).absolute()
+    raise TrackingError(
+        f"MLflow tracking store {uri!r}: experiment {experiment!r} keeps its runs' artifacts in {artifacts}, "
+        f"outside {folder}, the store's folder (the store was copied from another folder?): new runs would write "
+        f"their model files there. Log to the store it was copied from (set MLFLOW_TRACKING_URI to it), to a new "
+        f"experiment of this store (a new training.experiment in params.yaml), or to a new store here "
+        f"(move {store} aside)")
 
 
 def run_tags(stage: str) -> dict[str, str]:

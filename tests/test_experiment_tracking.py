@@ -1,15 +1,21 @@
-"""MLflow runs as a user finds them in the store: a run whose stage was killed does not stay RUNNING."""
+"""MLflow runs as a user finds them in the store: a run whose stage was killed does not stay RUNNING;
+the runs of a queued experiment are in the repository's store, and a workspace's runs keep their
+artifacts in that workspace."""
 
 from __future__ import annotations
 
 import logging
+import shutil
 import subprocess
 import sys
 from pathlib import Path
+from urllib.parse import urlparse
 
 import mlflow
+import pytest
 
-from pipeline.experiment_tracking import check_tracking_store, run_tags
+from pipeline.experiment_tracking import TrackingError, check_tracking_store, run_tags, tracking_uri
+from tests.project import environment
 
 EXPERIMENT = "radar-nn-tracker"
 
@@ -26,7 +32,7 @@ def test_a_stage_start_marks_killed_the_runs_its_killed_predecessors_left_runnin
     host (whose pids mean nothing here) and a run of another stage are left as they are."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = mlflow.MlflowClient(tracking_uri=uri)
-    experiment_id = client.create_experiment(EXPERIMENT)
+    experiment_id = client.create_experiment(EXPERIMENT, artifact_location=str(tmp_path / "mlruns"))
     finished = subprocess.Popen([sys.executable, "-c", "pass"])
     finished.wait()
     still_going = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
@@ -45,3 +51,139 @@ def test_a_stage_start_marks_killed_the_runs_its_killed_predecessors_left_runnin
     assert client.get_run(killed).info.end_time is not None
     closing = [record.getMessage() for record in caplog.records if "KILLED" in record.getMessage()]
     assert len(closing) == 1 and killed in closing[0] and str(finished.pid) in closing[0]
+
+
+def test_a_relative_store_is_the_repositorys_also_in_dvcs_temporary_copy(tmp_path: Path, monkeypatch) -> None:
+    """DVC runs a queued or `--temp` experiment in a copy of the repository under
+    .dvc/tmp/exps/, deletes the copy afterwards, and sets DVC_ROOT to the repository the
+    experiment came from: a relative store (params' `sqlite:///mlflow.db`) is that repository's,
+    where the runs outlive the copy."""
+    repository = tmp_path / "repository"
+    copy = repository / ".dvc" / "tmp" / "exps" / "tmpa1b2c3"
+    (copy / ".dvc").mkdir(parents=True)
+    monkeypatch.chdir(copy)
+    monkeypatch.setenv("DVC_ROOT", str(repository))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    assert tracking_uri("sqlite:///mlflow.db") == f"sqlite:///{repository / 'mlflow.db'}"
+    assert tracking_uri("sqlite:///runs/mlflow.db?timeout=30") == f"sqlite:///{repository}/runs/mlflow.db?timeout=30"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "file:mlruns")  # a file store, named by the user
+    assert tracking_uri("sqlite:///mlflow.db") == (repository / "mlruns").as_uri()
+
+
+def test_a_relative_store_of_a_stage_in_the_repository_itself_is_where_the_stage_runs(tmp_path: Path,
+                                                                                       monkeypatch) -> None:
+    """`dvc repro` sets DVC_ROOT to the repository it runs in; without DVC (a stage's command typed
+    by hand) there is none. Either way the relative store is in the current folder, and an
+    absolute one or a server is left as it is."""
+    repository = tmp_path / "repository"
+    (repository / ".dvc").mkdir(parents=True)
+    monkeypatch.chdir(repository)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    for dvc_root in (str(repository), None):
+        if dvc_root is None:
+            monkeypatch.delenv("DVC_ROOT", raising=False)
+        else:
+            monkeypatch.setenv("DVC_ROOT", dvc_root)
+        assert tracking_uri("sqlite:///mlflow.db") == f"sqlite:///{repository / 'mlflow.db'}"
+        assert tracking_uri("sqlite:////srv/mlflow/team.db") == "sqlite:////srv/mlflow/team.db"
+        assert tracking_uri("http://mlflow.example.org:5000") == "http://mlflow.example.org:5000"
+
+
+LOG_RUN = '''\
+"""A stage that logs one MLflow run as the pipeline's stages do, its params and one artifact."""
+import mlflow
+import yaml
+
+from pipeline.experiment_tracking import check_tracking_store, run_tags, tracking_uri
+
+uri = tracking_uri("sqlite:///mlflow.db")
+check_tracking_store(uri, "radar-nn-tracker", "log_run")
+mlflow.set_tracking_uri(uri)
+mlflow.set_experiment("radar-nn-tracker")
+with mlflow.start_run(run_name="log_run", tags=run_tags("log_run")):
+    mlflow.log_params(yaml.safe_load(open("params.yaml")))
+    mlflow.log_artifact("params.yaml")
+'''
+
+
+def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_store(tmp_path: Path) -> None:
+    """`dvc exp run --temp` (what `dvc queue start` does for each queued experiment) runs the
+    stage in .dvc/tmp/exps/ and deletes that copy: its run, params and artifact are in the
+    repository's mlflow.db and mlruns/ afterwards."""
+    repository = tmp_path / "repository"
+    repository.mkdir()
+    (repository / "log_run.py").write_text(LOG_RUN)
+    (repository / "params.yaml").write_text("learning_rate: 0.001\n")
+    (repository / "dvc.yaml").write_text("stages:\n  log_run:\n    cmd: python log_run.py\n"
+                                         "    deps: [log_run.py]\n    params: [learning_rate]\n")
+    (repository / ".gitignore").write_text("/mlflow.db\n/mlruns/\n")
+    env = {**environment(), "GIT_AUTHOR_NAME": "test", "GIT_AUTHOR_EMAIL": "test@example.invalid",
+           "GIT_COMMITTER_NAME": "test", "GIT_COMMITTER_EMAIL": "test@example.invalid"}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    for command in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"],
+                    ["git", "add", "-A"], ["git", "commit", "-q", "-m", "a stage that logs a run"],
+                    [sys.executable, "-m", "dvc", "exp", "run", "--temp", "-S", "learning_rate=0.002"]):
+        result = subprocess.run(command, cwd=repository, env=env, capture_output=True, text=True)
+        assert result.returncode == 0, f"{' '.join(command)}:\n{result.stdout}\n{result.stderr[-3000:]}"
+
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name(EXPERIMENT)
+    assert experiment is not None, "no run reached the repository's mlflow.db"
+    runs = client.search_runs([experiment.experiment_id])
+    assert [run.data.params["learning_rate"] for run in runs] == ["0.002"]
+    artifacts = _local_path(runs[0].info.artifact_uri)
+    assert artifacts.is_relative_to(repository / "mlruns") and (artifacts / "params.yaml").is_file()
+
+
+def _local_path(artifact_uri: str) -> Path:
+    """The folder of a local artifact URI, which MLflow writes as a path or a file: URI."""
+    return Path(urlparse(artifact_uri).path)
+
+
+def _log_run_with_artifact(uri: str, artifact: Path) -> str:
+    """One run of a stage in the store at `uri`, checked first as every stage does; its id."""
+    check_tracking_store(uri, EXPERIMENT, "train_filter")
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    run_id = _running_run(client, client.get_experiment_by_name(EXPERIMENT).experiment_id, "train_filter")
+    client.log_artifact(run_id, str(artifact))
+    client.set_terminated(run_id)
+    return run_id
+
+
+def test_a_new_store_keeps_its_runs_artifacts_beside_it_wherever_the_stage_runs(tmp_path: Path, monkeypatch) -> None:
+    """The first stage to use a SQLite store creates the experiment with its artifacts in the
+    store's folder, not in ./mlruns of the folder the stage happens to run in."""
+    store, elsewhere = tmp_path / "workspace", tmp_path / "elsewhere"
+    store.mkdir()
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    model = tmp_path / "filter.pt"
+    model.write_bytes(b"weights")
+    uri = f"sqlite:///{store / 'mlflow.db'}"
+    run_id = _log_run_with_artifact(uri, model)
+    artifacts = _local_path(mlflow.MlflowClient(tracking_uri=uri).get_run(run_id).info.artifact_uri)
+    assert artifacts.is_relative_to(store / "mlruns") and (artifacts / "filter.pt").read_bytes() == b"weights"
+    assert list(elsewhere.iterdir()) == []
+
+
+def test_a_copied_store_is_refused_naming_both_folders_before_writing_into_the_original(tmp_path: Path) -> None:
+    """A workspace copied with its mlflow.db and mlruns/ (cp -a, rsync, a backup restored
+    elsewhere): MLflow recorded the experiment's artifact location as the original folder's
+    mlruns/, so a new run of the copy would write its model file there. The stage stops instead,
+    naming the copy's store, the original folder and the way out; the original goes on as before."""
+    original, copy = tmp_path / "original", tmp_path / "copy"
+    original.mkdir()
+    model = tmp_path / "filter.pt"
+    model.write_bytes(b"weights")
+    _log_run_with_artifact(f"sqlite:///{original / 'mlflow.db'}", model)
+    shutil.copytree(original, copy)
+    before = sorted(path for path in (original / "mlruns").rglob("*"))
+
+    with pytest.raises(TrackingError) as refused:
+        check_tracking_store(f"sqlite:///{copy / 'mlflow.db'}", EXPERIMENT, "train_filter")
+    message = str(refused.value)
+    assert f"keeps its runs' artifacts in {original / 'mlruns'}" in message
+    assert f"outside {copy}, the store's folder" in message
+    assert f"move {copy / 'mlflow.db'} aside" in message
+    assert sorted(path for path in (original / "mlruns").rglob("*")) == before
+    _log_run_with_artifact(f"sqlite:///{original / 'mlflow.db'}", model)
