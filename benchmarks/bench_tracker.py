@@ -5,7 +5,7 @@ core, and prints plots per second of wall time and of this process's CPU time (o
 shared with other work, the CPU figure is the steadier one). Needs the trained models
 (`dvc repro`) for the neural methods, the tuned filters for the classical ones.
 
-    python benchmarks/bench_tracker.py [--scenarios 10] [--window 4000] [--methods via mia ae radius]
+    python benchmarks/bench_tracker.py [--scenarios 10] [--window 4000] [--methods via imm ...]
                                        [--models models]
 """
 
@@ -28,7 +28,7 @@ def main() -> None:
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--scenarios", type=int, default=10, help="test scenarios to track per method")
     parser.add_argument("--window", type=float, default=4000.0)
-    parser.add_argument("--methods", nargs="+", default=["via", "mia", "ae", "radius"])
+    parser.add_argument("--methods", nargs="+", default=list(registry.TRACKERS), help="default: every tracker")
     parser.add_argument("--models", default="models", help="folder of the trained networks and tuned filters")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)

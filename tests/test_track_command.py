@@ -59,17 +59,13 @@ def two_radar_recording(params, rng: np.random.Generator) -> tuple[pa.Table, pa.
     return pa.concat_tables(tables), description, np.array(target_ids)
 
 
-def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Path, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    pq.write_table(plots, folder / "plots.parquet")
-    pq.write_table(radars, folder / "radar.parquet")
-    return folder / "plots.parquet", folder / "radar.parquet"
-
-
-def track_command(params_path: Path, plots_path: Path, radar_path: Path, models: Path, method: str,
-                  out: Path) -> int:
+def track_command(folder: Path, models: Path, method: str, plots: pa.Table, radars: pa.Table) -> int:
+    """`python -m pipeline track` on the recording, written with default params in `folder`; the
+    output goes to folder / "tracks.parquet"."""
+    plots_path, radar_path = tf.write_recording(folder / "recording", plots, radars)
+    params_path = write_params(tf.params_tree(), folder / "params.yaml")
     return cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
-                     "--models", str(models), "--method", method, "--out", str(out)])
+                     "--models", str(models), "--method", method, "--out", str(folder / "tracks.parquet")])
 
 
 def test_two_radars_plots_each_carry_their_own_radars_covariance(params, tmp_path):
@@ -77,7 +73,7 @@ def test_two_radars_plots_each_carry_their_own_radars_covariance(params, tmp_pat
     thesis conversion's error of the true position) and gets its own radar's converted-measurement
     covariance, which differs from the other radar's at the same place."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(1))
-    table = plot_table.read_parquet_plots(*write_recording(tmp_path, plots, radars), params.radar)
+    table = plot_table.read_parquet_plots(*tf.write_recording(tmp_path, plots, radars), params.radar)
     assert set(table.radar_id.tolist()) == {1, 2} and len(table) == plots.num_rows
     assert (np.diff(table.time) >= 0).all()
     sites = {1: params.radar, 2: tf.radar_at(params.radar, *SECOND_SITE)}
@@ -96,12 +92,9 @@ def test_imm_tracks_a_two_radar_recording_with_only_the_tuned_filters(params, tm
     """`track --method imm` in a checkout with only models/kalman_tuned.json: exit 0; the target's plots
     of both radars form one confirmed track; each row carries its plot's radar and the range from it."""
     plots, radars, target_ids = two_radar_recording(params, np.random.default_rng(2))
-    plots_path, radar_path = write_recording(tmp_path / "recording", plots, radars)
-    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
-    out = tmp_path / "tracks.parquet"
-    assert track_command(params_path, plots_path, radar_path, filters_only, "imm", out) == 0
+    assert track_command(tmp_path, filters_only, "imm", plots, radars) == 0
     assert sorted(p.name for p in filters_only.iterdir()) == ["kalman_tuned.json"]
-    tracks = pq.read_table(out).to_pydict()
+    tracks = pq.read_table(tmp_path / "tracks.parquet").to_pydict()
     target = np.isin(tracks["plot_id"], target_ids)
     assert len(set(np.asarray(tracks["track_id"])[target].tolist())) == 1
     assert {radar_id for radar_id, is_target in zip(tracks["radar_id"], target) if is_target} == {1, 2}
@@ -121,12 +114,9 @@ def test_a_method_whose_model_is_missing_names_the_file_and_stage(params, tmp_pa
     """A neural method in the same checkout: exit 2, the missing model file and the `dvc repro` stage
     that makes it named, no output."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(3))
-    plots_path, radar_path = write_recording(tmp_path / "recording", plots, radars)
-    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
-    out = tmp_path / "tracks.parquet"
-    assert track_command(params_path, plots_path, radar_path, filters_only, method, out) == 2
+    assert track_command(tmp_path, filters_only, method, plots, radars) == 2
     assert f"{filters_only / missing}: file not found" in caplog.text and f"dvc repro {stage}" in caplog.text
-    assert not out.exists()
+    assert not (tmp_path / "tracks.parquet").exists()
 
 
 def test_a_classical_method_without_tuned_filters_names_the_file_and_stage(params, tmp_path):
@@ -143,7 +133,7 @@ def test_an_unknown_method_names_the_registered_ones(params, tmp_path):
 def test_plots_of_an_undescribed_radar_name_the_radar_id(params, tmp_path):
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(4))
     only_first = radars.filter(pa.compute.equal(radars.column("radar_id"), 1))
-    plots_path, radar_path = write_recording(tmp_path, plots, only_first)
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, only_first)
     with pytest.raises(io.InputError, match=r"plots from radar id 2 .*it has \[1\]") as error:
         plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
     assert str(plots_path) in str(error.value)

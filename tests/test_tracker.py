@@ -64,14 +64,6 @@ def status(weight: float, tracker) -> str:
     return ThesisWeights.from_params(tracker).status(weight)
 
 
-def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:
-    """Plot ids of each track, in update order."""
-    out: dict[int, list[int]] = {}
-    for track_id, plot_id in zip(updates["track_id"].tolist(), updates["plot_id"].tolist()):
-        out.setdefault(track_id, []).append(plot_id)
-    return out
-
-
 def expected_weights(count: int) -> list[float]:
     return [min(0.4 + 0.2 * n, 1.0) for n in range(count)]
 
@@ -293,7 +285,7 @@ def test_two_targets_far_apart_give_two_tracks_of_their_own_plots(method, models
     b = tf.straight_features(params.radar, (-50e3, 60e3, 6000.0), (0.0, -150.0, 0.0), 25, t_offset=2.5)
     features, ids = tf.merge((a, np.arange(25)), (b, 100 + np.arange(25)))
     updates = run(features, ids, method, models, params)
-    tracks = tracks_of(updates)
+    tracks = tf.tracks_of(updates)
     assert sorted(tracks.values()) == [list(range(25)), list(range(100, 125))]
     for track_id in tracks:
         weights = updates["weight"][updates["track_id"] == track_id]
@@ -349,7 +341,7 @@ def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_enu_frame
     for column in ("track_id", "plot_id", "association", "status", "time_unix_s", "radar_id", "scenario_id"):
         assert finland.column(column).to_pylist() == australia.column(column).to_pylist(), column
     np.testing.assert_allclose(finland.column("weight").to_numpy(), australia.column("weight").to_numpy(), atol=1e-12)
-    tracks = tracks_of({name: finland.column(name).to_numpy() for name in ("track_id", "plot_id")})
+    tracks = tf.tracks_of({name: finland.column(name).to_numpy() for name in ("track_id", "plot_id")})
     assert list(range(30)) in tracks.values() and list(range(100, 130)) in tracks.values()
     assert finland.column("status").to_pylist().count("confirmed") >= 50
     ecef = [np.column_stack([table.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"]) for table in results]
@@ -384,13 +376,6 @@ def assert_same_table(got: pa.Table, expected: pa.Table) -> None:
                                       expected.column(name).to_numpy(zero_copy_only=False), err_msg=name)
 
 
-def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Path, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    pq.write_table(plots, folder / "plots.parquet")
-    pq.write_table(radars, folder / "radar.parquet")
-    return folder / "plots.parquet", folder / "radar.parquet"
-
-
 def test_track_recording_tracks_the_target(recording, params, models_dir):
     plots, radars = recording
     table = track_recording(recording_plots(plots, radars, params), "via", WINDOW_M, params, models_dir)
@@ -405,7 +390,7 @@ def test_track_recording_tracks_the_target(recording, params, models_dir):
 def test_plots_missing_a_column_name_the_file_and_column_and_write_nothing(recording, params, models_dir, tmp_path,
                                                                            caplog):
     """`track --plots` without azimuth_deg: exit 2, the file and the column named, no output."""
-    plots_path, radar_path = write_recording(tmp_path, recording[0].drop_columns(["azimuth_deg"]), recording[1])
+    plots_path, radar_path = tf.write_recording(tmp_path, recording[0].drop_columns(["azimuth_deg"]), recording[1])
     params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
     out = tmp_path / "tracks.parquet"
     code = cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
@@ -421,7 +406,7 @@ def test_nan_range_names_the_column_and_writes_nothing(recording, params, models
     range_m[7] = np.nan
     plots = plots.set_column(plots.schema.get_field_index("range_m"), plots.schema.field("range_m"),
                              pa.array(range_m))
-    plots_path, radar_path = write_recording(tmp_path, plots, radars)
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match=r"column 'range_m' is NaN in 1 rows") as error:
         run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -432,7 +417,7 @@ def test_nan_range_names_the_column_and_writes_nothing(recording, params, models
 def test_plots_of_a_radar_not_in_the_description_are_refused(recording, params, models_dir, tmp_path):
     plots, _ = recording
     other = tf.radar_table(9, params.radar)
-    plots_path, radar_path = write_recording(tmp_path, plots, other)
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, other)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match="radar id 1") as error:
         run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -447,7 +432,7 @@ def test_models_built_with_another_scaler_are_refused(recording, models_dir, tmp
     with pytest.raises(io.InputError, match="scaler") as error:
         load_models(models_dir, other, ["via"])
     assert str(models_dir / "predictor.pt") in str(error.value)
-    plots_path, radar_path = write_recording(tmp_path, *recording)
+    plots_path, radar_path = tf.write_recording(tmp_path, *recording)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match="scaler"):
         run_track(other, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -467,7 +452,7 @@ def test_plots_out_of_time_order_are_sorted(recording, params, models_dir, tmp_p
     assert_same_table(got, expected)
     assert "out of time order" in caplog.text
     # Through the command too: the file written is the same.
-    plots_path, radar_path = write_recording(tmp_path, shuffled, radars)
+    plots_path, radar_path = tf.write_recording(tmp_path, shuffled, radars)
     run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, tmp_path / "tracks.parquet")
     assert_same_table(pq.read_table(tmp_path / "tracks.parquet"), expected)
 

@@ -74,19 +74,12 @@ def plots(times: list[float], offsets_m: list[float], targets: list[int] | None 
     return tf.plots_of(features, np.arange(len(times)), radar, None if targets is None else np.asarray(targets))
 
 
-def tracks_of(updates) -> dict[int, list[int]]:
-    out: dict[int, list[int]] = {}
-    for track_id, plot_id in zip(updates["track_id"].tolist(), updates["plot_id"].tolist()):
-        out.setdefault(track_id, []).append(plot_id)
-    return out
-
-
 def test_a_track_starts_is_confirmed_at_its_fourth_plot_and_labels_its_gates():
     """Six plots 500 m apart, 6 s apart: one track; weights 0.4, 0.6, 0.8, 1.0, 1.0, 1.0; statuses
     tentative, tentative, candidate, confirmed...; the second plot joins by the young-track radius, the
     others by the method's gate; a start's error is NaN, the others distance / window."""
     updates = track(plots([0, 6, 12, 18, 24, 30], [0, 500, 1000, 1500, 2000, 2500]), composition())
-    assert tracks_of(updates) == {0: [0, 1, 2, 3, 4, 5]}
+    assert tf.tracks_of(updates) == {0: [0, 1, 2, 3, 4, 5]}
     np.testing.assert_allclose(updates["weight"], [0.4, 0.6, 0.8, 1.0, 1.0, 1.0])
     assert [RULE.status(w) for w in updates["weight"]] == ["tentative", "tentative", "candidate", "confirmed",
                                                             "confirmed", "confirmed"]
@@ -132,10 +125,10 @@ def test_global_nearest_neighbour_assigns_a_scan_jointly_where_nearest_per_plot_
     Nearest per plot instead gives both scan-0 plots one track (1000 m is inside its window)."""
     recording = plots([0.0, 0.5, 6.0, 6.5], [0.0, 1000.0, 600.0, 1500.0])
     joint = track(recording, composition(assigner=GlobalNearestPerScan(), mature_from=1))
-    assert tracks_of(joint) == {0: [0, 2], 1: [1, 3]}
+    assert tf.tracks_of(joint) == {0: [0, 2], 1: [1, 3]}
     np.testing.assert_allclose(joint["association_error"][2:], [0.3, 0.25])
     greedy = track(recording, composition(mature_from=1))
-    assert tracks_of(greedy) != tracks_of(joint)
+    assert tf.tracks_of(greedy) != tf.tracks_of(joint)
 
 
 def test_global_nearest_neighbour_scans_follow_each_radars_rotation():
@@ -154,7 +147,7 @@ def test_the_oracle_joins_each_plot_to_its_own_targets_track():
     oracle = Composition("oracle", StayingEstimator(), AcceptAll(), RadiusGate(WINDOW_M), "radius", 1, float("inf"),
                          TrueAssociation(), RULE)
     updates = track(plots(times, offsets, targets), oracle)
-    assert sorted(tracks_of(updates).values()) == [[0, 3, 6], [1, 4, 7], [2], [5], [8]]
+    assert sorted(tf.tracks_of(updates).values()) == [[0, 3, 6], [1, 4, 7], [2], [5], [8]]
     assert set(updates["association"][updates["association"] != "start"]) == {"oracle"}
 
 

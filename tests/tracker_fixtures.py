@@ -19,6 +19,7 @@ from typing import Any, Mapping
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pymap3d
 
 from pipeline import baselines, geodesy, materials, model_eval
@@ -287,3 +288,19 @@ def radar_table(radar_id: int, radar: Radar) -> pa.Table:
     return pa.Table.from_pylist([{"radar_id": radar_id, "latitude_deg": radar.latitude_deg,
                                   "longitude_deg": radar.longitude_deg, "height_m": radar.height_m}],
                                 schema=RADAR_INPUT_SCHEMA)
+
+
+def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Path, Path]:
+    """`track`'s Parquet input: the plots and the radar description written in `folder`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    pq.write_table(plots, folder / "plots.parquet")
+    pq.write_table(radars, folder / "radar.parquet")
+    return folder / "plots.parquet", folder / "radar.parquet"
+
+
+def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:
+    """Plot ids of each track of an update table, in update order."""
+    out: dict[int, list[int]] = {}
+    for track_id, plot_id in zip(updates["track_id"].tolist(), updates["plot_id"].tolist()):
+        out.setdefault(track_id, []).append(plot_id)
+    return out

@@ -17,8 +17,9 @@ plot's time, made once by the loop (and handed to the update as well); the other
 - `WindowGate` (`via`): distance from the predicted position, within a constant window.
 - `ChiSquareGate` (the classical methods): Mahalanobis distance d^2 = y' S^-1 y of the plot from
   the predicted position, S the predicted position covariance plus the plot's measurement
-  covariance, within the chi-square quantile of the gate probability (3 degrees of freedom);
-  the error is d^2 / quantile.
+  covariance, within the chi-square quantile of the gate probability (3 degrees of freedom:
+  the validation gate of Bar-Shalom, Li and Kirubarajan, "Estimation with Applications to
+  Tracking and Navigation", 2001, section 5.4.2); the error is d^2 / quantile.
 - `AcceptAll` (the oracle, whose assigner uses the truth): every track, error 0.
 
 The gates that run networks (`mia`, `ae`) are in `pipeline.tracker.network_gates`.

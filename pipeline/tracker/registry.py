@@ -23,7 +23,11 @@ from typing import TYPE_CHECKING, Callable
 
 if TYPE_CHECKING:
     from pipeline.params import TrackerParams
+    from pipeline.tracker.assigner import Assigner
+    from pipeline.tracker.estimator import Estimator
+    from pipeline.tracker.gate import Gate
     from pipeline.tracker.models import Models
+    from pipeline.tracker.network_estimator import NetworkEstimator
     from pipeline.tracker.run import Composition
 
 NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
@@ -54,8 +58,9 @@ class Method:
     filter_kind: str | None = None
 
 
-def _composition(label: str, estimator, gate, mature_from: int, window_m: float, params: "TrackerParams",
-                 assigner=None, prefilter_m: float | None = None, young_gate=None) -> "Composition":
+def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: int, window_m: float,
+                 params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
+                 young_gate: "Gate | None" = None) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
     pre-filter distance of params, nearest neighbour per plot and the thesis's weights."""
     from pipeline.tracker.assigner import NearestPerPlot
@@ -67,7 +72,7 @@ def _composition(label: str, estimator, gate, mature_from: int, window_m: float,
                        ThesisWeights.from_params(params))
 
 
-def _network_estimator(models: "Models"):
+def _network_estimator(models: "Models") -> "NetworkEstimator":
     from pipeline.tracker.network_estimator import NetworkEstimator
     return NetworkEstimator(models)
 
