@@ -3,9 +3,9 @@
 Runs the tracking loop (no metrics, no I/O) over the test scenarios for each method, on one
 core, and prints plots per second of wall time and of this process's CPU time (on a machine
 shared with other work, the CPU figure is the steadier one). Needs the trained models
-(`dvc repro`) and, for the classical methods, the tuned filters.
+(`dvc repro`) for the neural methods, the tuned filters for the classical ones.
 
-    python benchmarks/bench_tracker.py [--scenarios 10] [--window 4000] [--methods via mia ae radius]
+    python benchmarks/bench_tracker.py [--scenarios 10] [--window 4000] [--methods via imm ...]
                                        [--models models]
 """
 
@@ -16,12 +16,11 @@ import logging
 import time
 from pathlib import Path
 
-import torch
-
-from pipeline import io, routes, simulate
-from pipeline.evaluate_stage import load_scenarios, load_tracker_models
+from pipeline.evaluate_stage import read_scenarios
 from pipeline.params import load_params
-from pipeline.tracker.run import track_plots
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.run import track
 
 
 def main() -> None:
@@ -29,24 +28,19 @@ def main() -> None:
     parser.add_argument("--params", default="params.yaml")
     parser.add_argument("--scenarios", type=int, default=10, help="test scenarios to track per method")
     parser.add_argument("--window", type=float, default=4000.0)
-    parser.add_argument("--methods", nargs="+", default=["via", "mia", "ae", "radius"])
+    parser.add_argument("--methods", nargs="+", default=list(registry.TRACKERS), help="default: every tracker")
     parser.add_argument("--models", default="models", help="folder of the trained networks and tuned filters")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    torch.set_num_threads(1)
     params = load_params(args.params)
-    split = params.evaluate.split
-    plots = io.read_parquet(Path("data/simulated") / split / "plots.parquet", simulate.PLOT_SCHEMA)
-    route_table = io.read_parquet(Path("data/routes") / f"{split}.parquet", routes.ROUTE_SCHEMA)
-    truth = io.read_parquet(Path("data/simulated") / split / "truth.parquet", simulate.TRUTH_SCHEMA)
-    scenarios = load_scenarios(plots, route_table, truth)[:args.scenarios]
-    models = load_tracker_models(Path(args.models), params, list(args.methods))
-    count = sum(len(s.features) for s in scenarios)
+    scenarios = read_scenarios(params, Path("data/simulated"), Path("data/routes"))[:args.scenarios]
+    models = load_models(Path(args.models), params, list(args.methods))
+    count = sum(len(s.plots) for s in scenarios)
     for method in args.methods:
         start, cpu = time.perf_counter(), time.process_time()
         for scenario in scenarios:
-            track_plots(scenario.features, scenario.plot_ids, method, args.window, models, params.tracker,
-                        seed=[params.tracker.seed, scenario.scenario_id], radar=params.radar)
+            track(scenario.plots, registry.compose(method, models, params.tracker, args.window,
+                                                   [params.tracker.seed, scenario.scenario_id]))
         elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
         print(f"{method:9s} {count} plots in {elapsed:.1f} s: {count / elapsed:,.0f} plots/s "
               f"({count / cpu:,.0f} per CPU second)")

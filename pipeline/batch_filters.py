@@ -1,15 +1,25 @@
-"""The classical filters of `pipeline.classical_filters`, stepped for many tracks at once.
+"""The one Kalman core: the classical filters of `pipeline.classical_filters` (CV, CA, IMM) for
+many tracks at once. The tuner (`pipeline.tuning`), the hold-out comparison
+(`pipeline.compare_stage`) and the tracker (`pipeline.tracker.kalman`) all step their filters here.
 
 Why our own code next to filterpy: the tuner evaluates its cost about a hundred times over
-the ~100,000 target plots of the training routes, and the hold-out comparison runs tens of
-thousands of windows. filterpy's objects step one track at a time (~0.3 ms per Kalman step,
-~0.9 ms per IMM step here), which would make tuning take hours; the same equations written
-over a batch axis take seconds. The tests check this module against filterpy, step by step.
+the ~100,000 target plots of the training routes, the hold-out comparison runs tens of
+thousands of windows, and the tracker gates and updates tracks at tens of thousands of plots
+per second. filterpy's objects step one track at a time (~0.3 ms per Kalman step, ~0.9 ms per
+IMM step here), which would make tuning take hours and the tracker ten times slower; the same
+equations written over a batch axis take seconds. filterpy stays the reference: the tests check
+this module against it, step by step.
 
 A batch state holds, for B tracks and M motion models, the states x (B, M, n), covariances
 P (B, M, n, n) and mode probabilities mu (B, M) (M = 1 for a single Kalman filter, 2 for the
 IMM). The update is filterpy's: Joseph-form covariance and Gaussian likelihoods for the IMM,
 here in log space so a far-off plot cannot underflow every model at once.
+
+One step is `mixed` (the IMM's mixing: each model's starting state and the predicted mode
+probabilities; nothing for a single filter), `moved` (x' = F x, P' = F P F' + Q) and `updated`
+(with a measurement z and its covariance R). F and Q (from `motion`) and R are arguments of
+every call and given per track, so each track can have its own time step, process noise and
+measurement covariance (the radar a plot comes from; a network scaling the noise later).
 
 Why it is written the way it is: tuning steps ~90 rows through ~1200 steps about a hundred
 times per filter, so a step works on ~90 small matrices per model and its cost is overhead (per
@@ -59,7 +69,7 @@ def start(settings: FilterSettings, positions: np.ndarray, covariances: np.ndarr
                       np.tile(probabilities, (len(positions), 1)))
 
 
-def _motion(settings: FilterSettings, dt: np.ndarray) -> np.ndarray:
+def motion(settings: FilterSettings, dt: np.ndarray) -> np.ndarray:
     """Each model's transition F and process noise Q over dt of any shape: (*dt.shape, 2, M, n, n), F then Q."""
     return np.stack([np.stack([motion_models.transition(model, dt) for model in settings.models], axis=-3),
                      np.stack([motion_models.process_noise(model, dt, noise)
@@ -75,19 +85,20 @@ def _motion_per_step(settings: FilterSettings, dt: np.ndarray) -> Iterator[np.nd
     steps = max(1, CHUNK_CELLS // dt.shape[1])
     for first in range(0, len(dt), steps):
         values, codes = np.unique(dt[first:first + steps], return_inverse=True)
-        table = _motion(settings, values)
+        table = motion(settings, values)
         for code in codes.reshape(-1, dt.shape[1]):
             yield table[code]
 
 
-def _mixed(settings: FilterSettings, state: BatchState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IMM mixing: each model's starting state and covariance, and the predicted mode probabilities.
+def mixed(settings: FilterSettings, state: BatchState) -> BatchState:
+    """IMM mixing of posteriors: each model's starting state and covariance, and the predicted mode
+    probabilities cbar in `mu`; a single filter starts from its posterior (the same object).
 
     IMMEstimator's mixing, x0_j = sum_i w_ij x_i and P0_j = sum_i w_ij (P_i + d_ij d_ij') with
     d_ij = x_i - x0_j, where w_ij = T_ij mu_i / cbar_j; for two models, whose weights w_0j + w_1j
     are 1, the second sum is sum_i w_ij P_i + w_0j w_1j (x_0 - x_1)(x_0 - x_1)'."""
     if settings.kind != "imm":
-        return state.x, state.P, state.mu
+        return state
     transition = settings.transition_probabilities()
     cbar = state.mu @ transition                                                    # (B, M)
     weight = transition.T * state.mu[:, None, :] / cbar[:, :, None]                 # w_ij at [b, j, i]
@@ -95,13 +106,18 @@ def _mixed(settings: FilterSettings, state: BatchState) -> tuple[np.ndarray, np.
     B, M, n = state.x.shape
     P = (weight @ state.P.reshape(B, M, n * n)).reshape(state.P.shape) + \
         (weight[:, :, 0] * weight[:, :, 1])[:, :, None, None] * (spread[:, None, :, None] * spread[:, None, None, :])
-    return weight @ state.x, P, cbar
+    return BatchState(weight @ state.x, P, cbar)
 
 
-def _predicted(settings: FilterSettings, state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
-    """Each track moved by its models' F and Q (B, M, n, n); mu becomes the predicted mode probabilities."""
-    x, P, probabilities = _mixed(settings, state)
-    return BatchState((F @ x[..., None])[..., 0], F @ P @ np.swapaxes(F, -1, -2) + Q, probabilities)
+def moved(state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
+    """Each track's models moved by their transition F and process noise Q (B, M, n, n):
+    x' = F x, P' = F P F' + Q (filterpy's `KalmanFilter.predict`); mu is kept."""
+    return BatchState((F @ state.x[..., None])[..., 0], F @ state.P @ np.swapaxes(F, -1, -2) + Q, state.mu)
+
+
+def predicted(settings: FilterSettings, state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
+    """Posteriors mixed and moved by F and Q (B, M, n, n); mu becomes the predicted mode probabilities."""
+    return moved(mixed(settings, state), F, Q)
 
 
 def inverse3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -115,7 +131,7 @@ def inverse3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.swapaxes(cofactor.reshape(S.shape), -1, -2) / determinant[..., None, None], determinant
 
 
-def _updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray) -> BatchState:
+def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray) -> BatchState:
     """Each track updated with its measurement z (B, 3) of covariance R (B, 3, 3): Joseph form, and
     for the IMM the mode probabilities from the models' log-likelihoods.
 
@@ -140,14 +156,21 @@ def _updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.n
     return BatchState(x, P, mu)
 
 
-def _combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mode-weighted mean (..., k) and covariance (..., k, k) of the models' means x (..., M, k)
-    and covariances P (..., M, k, k) with probabilities mu (..., M)."""
+    and covariances P (..., M, k, k) with probabilities mu (..., M) (filterpy's
+    `IMMEstimator._compute_state_estimate`)."""
     models = range(mu.shape[-1])
     mean = sum(mu[..., m, None] * x[..., m, :] for m in models)
     offsets = [x[..., m, :] - mean for m in models]
     return mean, sum(mu[..., m, None, None] * (P[..., m, :, :] + offsets[m][..., :, None] * offsets[m][..., None, :])
                      for m in models)
+
+
+def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
+    """The tracks' positions (B, 3) and position covariances (B, 3, 3), their models combined."""
+    position = slice(None, None, state.x.shape[-1] // 3)
+    return combined(state.mu, state.x[..., position], state.P[..., position, position])
 
 
 def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, tracks: np.ndarray | slice) -> None:
@@ -178,24 +201,22 @@ def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.
     M, n = state.mu.shape[1], state.x.shape[-1]
     position = slice(None, None, n // 3)
     model_x, model_P, model_mu = np.empty((T, B, M, 3)), np.empty((T, B, M, 3, 3)), np.empty((T, B, M))
-    for step, motion in enumerate(_motion_per_step(settings, dt)):
-        updated = _updated(settings, _predicted(settings, state, motion[:, 0], motion[:, 1]), z[step], R[step])
+    for step, step_motion in enumerate(_motion_per_step(settings, dt)):
+        after = updated(settings, predicted(settings, state, step_motion[:, 0], step_motion[:, 1]), z[step], R[step])
         if repaired[step]:
             idle, cells = ~valid[:, step], slice(fresh_bounds[step], fresh_bounds[step + 1])
-            _overwrite(updated, idle, state, idle)                                  # padding: the state stays
-            _overwrite(updated, fresh_rows[cells], started, cells)
-        state = updated
+            _overwrite(after, idle, state, idle)                                    # padding: the state stays
+            _overwrite(after, fresh_rows[cells], started, cells)
+        state = after
         model_x[step], model_P[step], model_mu[step] = state.x[..., position], state.P[..., position, position], \
             state.mu
-    x, P = _combined(model_mu, model_x, model_P)                                    # (T, B, 3), (T, B, 3, 3)
+    x, P = combined(model_mu, model_x, model_P)                                     # (T, B, 3), (T, B, 3, 3)
     invalid = ~valid.T
     x[invalid], P[invalid] = np.nan, np.nan
     return np.ascontiguousarray(np.swapaxes(x, 0, 1)), np.ascontiguousarray(np.swapaxes(P, 0, 1)), state
 
 
 def predict_positions(settings: FilterSettings, state: BatchState, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted positions (B, 3) and covariances (B, 3, 3) dt (B,) seconds ahead."""
-    motion = _motion(settings, dt)
-    predicted = _predicted(settings, state, motion[:, 0], motion[:, 1])
-    position = slice(None, None, predicted.x.shape[-1] // 3)
-    return _combined(predicted.mu, predicted.x[..., position], predicted.P[..., position, position])
+    """Predicted positions (B, 3) and covariances (B, 3, 3) of posteriors dt (B,) seconds ahead."""
+    F_and_Q = motion(settings, dt)
+    return position_estimates(predicted(settings, state, F_and_Q[:, 0], F_and_Q[:, 1]))

@@ -5,8 +5,8 @@ the spread of a new track's velocity); the tuner chooses these values and saves 
 `models/kalman_tuned.json`, the tracker loads them.
 
 The filterpy objects built here are the reference: the tuner, the comparison and the tracker
-run the same equations on NumPy arrays (`pipeline.batch_filters`; one small batch per track in
-`pipeline.tracker.kalman`), which the tests check against these objects step by step. A filter
+(`pipeline.tracker.kalman`) run the same equations on NumPy arrays in the one Kalman core
+(`pipeline.batch_filters`), which the tests check against these objects step by step. A filter
 is started at one plot (`start_filter`); `advance` steps it to a plot's time and
 `predicted_gaussian` gives the prediction at any time without changing it (what gating needs).
 

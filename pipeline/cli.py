@@ -10,9 +10,10 @@ from datetime import date
 from pathlib import Path
 
 from pipeline.io import InputError
-from pipeline.params import ASSOCIATION_METHODS, ParamError, load_params
+from pipeline.params import ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
+from pipeline.tracker.registry import CLASSICAL, METHODS, TRACKERS, UnknownMethod
 from pipeline.tuning import TuningError
 
 log = logging.getLogger("pipeline")
@@ -150,12 +151,13 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
     elif option == "recording":
         command.add_argument("--plots", help="plots Parquet (the schema `simulate` writes; truth columns optional)")
         command.add_argument("--radar", help="radar description Parquet (radar_id, latitude_deg, longitude_deg, "
-                                             "height_m)")
+                                             "height_m; optionally scan_period_s), one row per radar")
         command.add_argument("--asterix", action="append", help="ASTERIX CAT048 + CAT034 file (repeatable)")
         command.add_argument("--date", help="UTC date of the first ASTERIX record, YYYY-MM-DD")
-        command.add_argument("--method", default="via", choices=ASSOCIATION_METHODS,
-                             help="association method (default: %(default)s); the classical ones (kalman_cv, "
-                                  "kalman_ca, imm, and *_gnn) need models/kalman_tuned.json")
+        command.add_argument("--method", default="via", choices=TRACKERS,
+                             help="tracking method (default: %(default)s); the classical ones ("
+                                  + ", ".join(name for name in TRACKERS if METHODS[name].family == CLASSICAL)
+                                  + ") need only models/kalman_tuned.json, the others the trained networks")
         command.add_argument("--window", type=float, default=4000.0,
                              help="association window in metres (default: %(default)s)")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
@@ -203,6 +205,6 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.quiet)
     try:
         return args.handler(args) or 0
-    except (ParamError, InputError, RouteGenerationError, TrackingError, TuningError) as error:
+    except (ParamError, InputError, RouteGenerationError, TrackingError, TuningError, UnknownMethod) as error:
         log.error("%s", error)
         return 2

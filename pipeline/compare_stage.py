@@ -21,6 +21,7 @@ from pipeline import baselines, batch_filters, figures, io, materials, model_eva
 from pipeline.classical_filters import FilterSettings, load_settings
 from pipeline.params import Params
 from pipeline.scaling import STATE_FEATURES
+from pipeline.tracker import registry
 
 TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "NOMT", "NOFPA", "ANEES", "plots_per_second")
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
@@ -109,9 +110,9 @@ def tuning_table(tuning: dict) -> str:
 
 def verdict(runs: dict[str, dict], holdout: dict) -> list[str]:
     """Plain sentences on who wins what, from the numbers."""
-    trackers = {name: values for name, values in runs.items() if not name.endswith("_reference")}
-    neural = {n: v for n, v in trackers.items() if n.split("_")[0] in ("via", "mia", "ae", "radius")}
-    classical = {n: v for n, v in trackers.items() if n not in neural}
+    trackers = {name: values for name, values in runs.items() if registry.family_of_run(name) != registry.REFERENCE}
+    neural = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.NEURAL}
+    classical = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.CLASSICAL}
     sentences = []
 
     def best(group: dict, metric: str, low: bool = True) -> str:

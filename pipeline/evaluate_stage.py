@@ -28,74 +28,68 @@ from typing import Callable, Iterator
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import torch
 
-from pipeline import baselines, classical_filters, experiment_tracking, figures, io, materials, ospa, routes, simulate
-from pipeline.model_store import load_model
+from pipeline import experiment_tracking, figures, io, ospa, plot_table, routes, simulate
 from pipeline.params import EvaluationRun, Params
+from pipeline.plot_table import NO_TARGET, Plots
 from pipeline.stages import progress_logger
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
-from pipeline.tracker.run import ORACLE, classical_kind, track_plots
+from pipeline.tracker.run import track
+from pipeline.tracker.updates import COLUMNS
 from pipeline.tracker_metrics import (THESIS, THESIS_PLOTS, RouteCounts, confirmed_nees, markdown_table, route_counts,
                                       summarise)
 
 log = logging.getLogger("pipeline")
 
-PLOT_FEATURE_COLUMNS = ("time_unix_s", "x_ecef_m", "y_ecef_m", "z_ecef_m", "range_m")
+PLOTS_REFERENCE = "plots"     # the target's raw plots with the true association (not a tracker)
+PLOTS_REFERENCE_COST = 0.03   # its relative cost (see registry.Method.relative_cost)
 
 
 @dataclass
 class Scenario:
     scenario_id: int
-    features: np.ndarray          # [t, x, y, z, r] per plot, time order
-    plot_ids: np.ndarray
-    is_target: dict[int, bool]
+    plots: Plots                  # the scenario's plots, time order
+    is_target: dict[int, bool]    # plot id -> whether the plot is the target's
     truth: object                 # t -> ECEF positions (a spline over the route)
     scans: np.ndarray             # each plot's antenna scan
     coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
 
 
-def load_tracker_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
-    """The trained networks, refusing any whose scaler differs from what params describe, and
-    the tuned classical filters when a method needs them."""
-    need_autoencoder = "ae" in methods
-    expected = materials.scalers(params.windows)
-    loaded = {}
-    for kind, layout in (("predictor", "states"), ("filter", "plots"), ("autoencoder", "plots")):
-        if kind == "autoencoder" and not need_autoencoder:
-            continue
-        path = models_dir / f"{kind}.pt"
-        model = load_model(path, expected_kind=kind)
-        if model.scaler != expected[layout]:
-            raise io.InputError(f"{path}: built with the scaler {model.scaler}, but params give {expected[layout]}; "
-                                f"retrain it (dvc repro train_{kind})")
-        loaded[kind] = model
-    filters = {}
-    if any(classical_kind(method) for method in methods):
-        filters = classical_filters.load_settings(models_dir / "kalman_tuned.json")
-    return Models(loaded["predictor"], loaded["filter"], loaded.get("autoencoder"), params.tracker.inference, filters)
-
-
-def load_scenarios(plots: pa.Table, route_table: pa.Table, truth_table: pa.Table) -> list[Scenario]:
+def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
+                   ) -> list[Scenario]:
+    """The scenarios of a split: its plots (`plot_table`), each plot's scan by plot id, its routes and truth."""
     scenarios = []
     route_ids = route_table.column("route_id").to_numpy()
     truth_scenarios = truth_table.column("scenario_id").to_numpy()
     truth_scans = truth_table.column("scan").to_numpy()
     in_coverage = truth_table.column("in_coverage").to_numpy(zero_copy_only=False)
-    for scenario_id in np.unique(plots.column("scenario_id").to_numpy()):
-        part = plots.filter(pc.equal(plots.column("scenario_id"), scenario_id))
-        order = np.argsort(part.column("time_unix_s").to_numpy(), kind="stable")
-        features = np.column_stack([part.column(c).to_numpy() for c in PLOT_FEATURE_COLUMNS])[order]
-        plot_ids = part.column("plot_id").to_numpy()[order]
-        flags = part.column("is_target").to_numpy(zero_copy_only=False)[order]
+    for scenario_id, part in plots.scenarios():
         route = route_table.filter(pa.array(route_ids == scenario_id))
         trajectory = simulate.trajectory_of({name: route.column(name).to_numpy() for name in simulate.ROUTE_COLUMNS})
-        scenarios.append(Scenario(int(scenario_id), features, plot_ids,
-                                  dict(zip(plot_ids.tolist(), flags.tolist())), _clipped(trajectory),
-                                  part.column("scan").to_numpy()[order],
+        scenarios.append(Scenario(scenario_id, part, dict(zip(part.plot_id.tolist(),
+                                                                (part.target_id != NO_TARGET).tolist())),
+                                  _clipped(trajectory), np.array([plot_scans[p] for p in part.plot_id.tolist()]),
                                   np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage])))
     return scenarios
+
+
+def read_scenarios(params: Params, simulated_dir: Path, routes_dir: Path) -> list[Scenario]:
+    """The evaluated split's scenarios, from the simulate and routes stages' files."""
+    split = params.evaluate.split
+    plots_path = simulated_dir / split / "plots.parquet"
+    table = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)
+    radars = io.read_parquet(simulated_dir / split / "radar.parquet", plot_table.RADAR_INPUT_SCHEMA,
+                             optional=("scan_period_s",))
+    plots = plot_table.plot_table(table.select(plot_table.PLOT_INPUT_SCHEMA.names).cast(plot_table.PLOT_INPUT_SCHEMA),
+                                  plot_table.sensors(radars, params.radar), str(plots_path))
+    return load_scenarios(plots, dict(zip(table.column("plot_id").to_numpy().tolist(),
+                                          table.column("scan").to_numpy().tolist())),
+                          io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
+                          io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
 
 
 def _clipped(trajectory: object) -> object:
@@ -106,37 +100,30 @@ def _clipped(trajectory: object) -> object:
 
 def reference_updates(scenario: Scenario, method: str, models: Models, params: Params) -> dict[str, np.ndarray]:
     """The references' updates, from the target's plots only: `plots` takes each plot as the
-    estimate of one always-confirmed track; `oracle` runs the tuned IMM tracker on them."""
-    target = np.array([scenario.is_target[int(p)] for p in scenario.plot_ids], dtype=bool)
-    features, plot_ids = scenario.features[target], scenario.plot_ids[target]
-    if method == ORACLE:
-        return track_plots(features, plot_ids, ORACLE, 0.0, models, params.tracker, radar=params.radar)
-    count = len(features)
-    return {"track_id": np.zeros(count, np.int64), "time_unix_s": features[:, 0], "plot_id": plot_ids,
-            "x_ecef_m": features[:, 1], "y_ecef_m": features[:, 2], "z_ecef_m": features[:, 3],
-            "range_m": features[:, 4], "weight": np.full(count, params.tracker.weight_confirmed),
-            "association": np.array(["truth"] * count), "association_error": np.zeros(count),
-            "position_covariance": baselines.measurement_covariance(features[:, 1:4], params.radar)}
+    estimate of one always-confirmed track; a registered reference (the oracle) runs its tracker on them."""
+    target = scenario.plots.take(scenario.plots.target_id != NO_TARGET)
+    if method != PLOTS_REFERENCE:
+        return track(target, registry.compose(method, models, params.tracker, 0.0, params.tracker.seed))
+    count = len(target)
+    values = {"track_id": np.zeros(count, np.int64), "time_unix_s": target.time, "plot_id": target.plot_id,
+              "radar_id": target.radar_id, "x_ecef_m": target.position[:, 0], "y_ecef_m": target.position[:, 1],
+              "z_ecef_m": target.position[:, 2], "weight": np.full(count, params.tracker.weight_confirmed),
+              "association": np.array(["truth"] * count), "association_error": np.zeros(count),
+              "position_covariance": target.covariance}
+    return {name: values[name] for name in COLUMNS}
 
 
 def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
     """Every run of params, and the references, as name -> track(scenario)."""
     def method_run(run: EvaluationRun) -> callable:
-        return lambda scenario: track_plots(scenario.features, scenario.plot_ids, run.method, run.window_m, models,
-                                            params.tracker, seed=[params.tracker.seed, scenario.scenario_id],
-                                            radar=params.radar)
+        return lambda scenario: track(scenario.plots, registry.compose(
+            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id]))
 
     def reference_run(method: str) -> callable:
         return lambda scenario: reference_updates(scenario, method, models, params)
 
     return {**{run.name: method_run(run) for run in params.evaluate.runs},
             **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
-
-
-# Rough tracking time per plot of each method, relative to VIA (measured on the default test
-# split). Only the order in which units are handed out depends on it, never a result.
-RELATIVE_COST = {"via": 1.0, "radius": 0.7, "mia": 2.2, "ae": 1.0, "kalman_cv": 1.5, "kalman_ca": 1.5, "imm": 2.0,
-                 "imm_gnn": 2.2, "oracle": 0.9, "plots": 0.03}
 
 
 @dataclass
@@ -163,32 +150,29 @@ class Evaluation:
 
 
 def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
-    """The scenarios of the evaluated split and every run, with the models loaded (and checked
-    against params)."""
-    split = params.evaluate.split
-    scenarios = load_scenarios(io.read_parquet(simulated_dir / split / "plots.parquet", simulate.PLOT_SCHEMA),
-                               io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
-                               io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
-    models = load_tracker_models(models_dir, params, [run.method for run in params.evaluate.runs]
-                                 + [ORACLE for method in params.evaluate.references if method == ORACLE])
-    return Evaluation(params, (simulated_dir, routes_dir, models_dir), scenarios, tracker_runs(params, models))
+    """The scenarios of the evaluated split and every run, with what the runs need loaded (and
+    checked against params)."""
+    models = load_models(models_dir, params, [run.method for run in params.evaluate.runs]
+                         + [name for name in params.evaluate.references if name in registry.REFERENCES])
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), read_scenarios(params, simulated_dir, routes_dir),
+                      tracker_runs(params, models))
 
 
 def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
     """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
     params, scenario = evaluation.params, evaluation.scenarios[index]
-    confirmed = params.tracker.weight_confirmed
+    management = ThesisWeights.from_params(params.tracker)
     start = time.perf_counter()
     updates = evaluation.runs[name](scenario)
     seconds = time.perf_counter() - start
-    scan_of_plot = dict(zip(scenario.plot_ids.tolist(), scenario.scans.tolist()))
+    scan_of_plot = dict(zip(scenario.plots.plot_id.tolist(), scenario.scans.tolist()))
     scan_ospa = ospa.scan_ospa(
-        updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), confirmed,
+        updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), management,
         scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
         params.evaluate.ospa_order)
     pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
-    return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, confirmed), scan_ospa,
-                      confirmed_nees(updates, scenario.is_target, scenario.truth, confirmed), seconds,
+    return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
+                      confirmed_nees(updates, scenario.is_target, scenario.truth, management), seconds,
                       updates if pictured else None)
 
 
@@ -206,8 +190,8 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
 
 def relative_cost(name: str, scenario: Scenario) -> float:
     """Rough tracking time of one unit (run `name`, one scenario), to hand out the largest first."""
-    method = name.removesuffix("_reference") if name.endswith("_reference") else name.rsplit("_", 1)[0]
-    return RELATIVE_COST.get(method, max(RELATIVE_COST.values())) * len(scenario.features)
+    method = registry.method_of_run(name)
+    return (PLOTS_REFERENCE_COST if method is None else method.relative_cost) * len(scenario.plots)
 
 
 _WORKER: Evaluation | None = None  # a worker process's evaluation, made by its initializer
@@ -253,7 +237,7 @@ def evaluate_all(evaluation: Evaluation, workers: int
     every scan (scenarios in order), and the example run's updates of the pictured scenarios by
     scenario id. Each run's metrics are logged as soon as its last unit is in."""
     scenarios = evaluation.scenarios
-    plots = sum(len(s.features) for s in scenarios)
+    plots = sum(len(s.plots) for s in scenarios)
     units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
                    key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
     workers = max(1, min(workers, len(units)))

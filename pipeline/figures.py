@@ -15,6 +15,11 @@ import pymap3d  # noqa: E402
 from pipeline import geodesy  # noqa: E402
 from pipeline.data_summary import target_plot_errors_m, target_plot_intervals_s  # noqa: E402
 from pipeline.params import STRATEGIES, Params  # noqa: E402
+from pipeline.tracker.management import ThesisWeights  # noqa: E402
+from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE, family_of_run  # noqa: E402
+from pipeline.tracker.updates import confirmed_associations, positions  # noqa: E402
+
+FAMILY_COLOURS = {NEURAL: "tab:blue", CLASSICAL: "tab:orange", REFERENCE: "tab:grey"}
 
 
 def _png(figure: plt.Figure) -> bytes:
@@ -142,10 +147,10 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
                                           radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
         return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
 
-    times = scenario.features[:, 0]
+    times = scenario.plots.time
     truth_e, truth_n = local_km(scenario.truth(np.linspace(times.min(), times.max(), 2000)))
-    plot_e, plot_n = local_km(scenario.features[:, 1:4])
-    target = np.array([scenario.is_target[int(p)] for p in scenario.plot_ids], dtype=bool)
+    plot_e, plot_n = local_km(scenario.plots.position)
+    target = np.array([scenario.is_target[int(p)] for p in scenario.plots.plot_id], dtype=bool)
     margin = 20.0
     box = (truth_e.min() - margin, truth_e.max() + margin, truth_n.min() - margin, truth_n.max() + margin)
     shown = (plot_e > box[0]) & (plot_e < box[1]) & (plot_n > box[2]) & (plot_n < box[3])
@@ -153,8 +158,8 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
     axis.scatter(plot_e[shown & ~target], plot_n[shown & ~target], s=2, color="0.7", label="false plots")
     axis.scatter(plot_e[target], plot_n[target], s=4, color="black", label="target plots")
     axis.plot(truth_e, truth_n, color="tab:green", lw=1.0, label="truth")
-    confirmed = (updates["association"] != "start") & (updates["weight"] >= params.tracker.weight_confirmed - 1e-9)
-    states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])
+    confirmed = confirmed_associations(updates, ThesisWeights.from_params(params.tracker))
+    states = positions(updates)
     for number, track_id in enumerate(np.unique(updates["track_id"][confirmed])):
         rows = confirmed & (updates["track_id"] == track_id)
         east, north = local_km(states[rows])
@@ -179,8 +184,7 @@ def comparison_picture(runs: dict[str, dict]) -> bytes:
     for axis, (metric, label) in zip(axes, (("OSPA", "OSPA (m)"), ("MAE", "MAE of confirmed tracks (m)"),
                                             ("ROCA", "target plots in confirmed tracks (ROCA)"))):
         values = [runs[n][metric] if runs[n][metric] is not None else np.nan for n in names]
-        colours = ["tab:grey" if n.endswith("_reference") else "tab:blue" if n.split("_")[0] in
-                   ("via", "mia", "ae", "radius") else "tab:orange" for n in names]
+        colours = [FAMILY_COLOURS[family_of_run(n)] for n in names]
         axis.barh(names, values, color=colours)
         axis.set_xlabel(label)
         axis.grid(axis="x", alpha=0.3)

@@ -19,6 +19,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.updates import confirmed_associations, positions
+
 
 def ospa(distances: np.ndarray, cutoff: float, order: float) -> float:
     """OSPA from the matrix of distances between m estimates (rows) and n truths (columns)."""
@@ -33,24 +36,25 @@ def ospa(distances: np.ndarray, cutoff: float, order: float) -> float:
     return float((total / max(m, n)) ** (1.0 / order))
 
 
-def scan_ospa(updates: dict[str, np.ndarray], update_scans: np.ndarray, confirmed_weight: float,
+def scan_ospa(updates: dict[str, np.ndarray], update_scans: np.ndarray, management: TrackManagement,
               scans_in_coverage: np.ndarray, all_scans: np.ndarray, truth_at: callable, cutoff: float,
               order: float) -> np.ndarray:
     """OSPA of one single-target scenario at each of `all_scans` (sorted).
 
+    `updates` is an update table (`pipeline.tracker.updates`), confirmed by `management`'s rule;
     `update_scans` is the scan of each update's plot; `scans_in_coverage` the scans in which
     the target exists for the radar; `truth_at(times)` the target's true ECEF positions."""
-    confirmed = (updates["association"] != "start") & (updates["weight"] >= confirmed_weight - 1e-9)
+    confirmed = confirmed_associations(updates, management)
     times = updates["time_unix_s"][confirmed]
     scans = update_scans[confirmed]
     tracks = updates["track_id"][confirmed]
     order_in_time = np.lexsort((times, tracks, scans))
     scans, tracks, times = scans[order_in_time], tracks[order_in_time], times[order_in_time]
-    positions = np.column_stack([updates[f"{a}_ecef_m"][confirmed] for a in "xyz"])[order_in_time]
+    estimates = positions(updates)[confirmed][order_in_time]
     last = np.ones(len(scans), dtype=bool)  # each track's last update in each scan
     last[:-1] = (scans[1:] != scans[:-1]) | (tracks[1:] != tracks[:-1])
-    scans, times, positions = scans[last], times[last], positions[last]
-    errors = np.linalg.norm(positions - truth_at(times), axis=1) if len(times) else np.empty(0)
+    scans, times, estimates = scans[last], times[last], estimates[last]
+    errors = np.linalg.norm(estimates - truth_at(times), axis=1) if len(times) else np.empty(0)
     present = np.isin(all_scans, scans_in_coverage)
     result = np.empty(len(all_scans))
     starts = np.searchsorted(scans, all_scans, side="left")

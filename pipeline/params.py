@@ -17,6 +17,8 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
+from pipeline.tracker import registry
+
 STRATEGIES = ("constant_jerk", "random_turns")
 
 
@@ -545,11 +547,7 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
     )
 
 
-CLASSICAL_METHODS = {"kalman_cv": "cv", "kalman_ca": "ca", "imm": "imm"}  # method -> tuned filter kind
-GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
-ASSOCIATION_METHODS = ("radius", "via", "mia", "ae", *CLASSICAL_METHODS,
-                       *(method + GLOBAL_SUFFIX for method in CLASSICAL_METHODS))
-REFERENCES = ("plots", "oracle")  # raw target plots; true association with the tuned IMM
+REFERENCES = ("plots", *registry.REFERENCES)  # raw target plots; the registry's references (the oracle)
 
 
 def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
@@ -602,8 +600,8 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
     runs = []
     for index, run in enumerate(runs_tree):
         method = _get(run, "method", f"{p}.runs[{index}]")
-        if method not in ASSOCIATION_METHODS:
-            raise ParamError(f"{p}.runs[{index}].method = {method!r}: must be one of {ASSOCIATION_METHODS}")
+        if method not in registry.TRACKERS:
+            raise ParamError(f"{p}.runs[{index}].method = {method!r}: must be one of {registry.TRACKERS}")
         runs.append(EvaluationRun(method, _positive(run, "window_m", f"{p}.runs[{index}]")))
     names = [run.name for run in runs]
     if len(set(names)) != len(names):

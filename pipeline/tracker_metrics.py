@@ -3,8 +3,8 @@
 Readings where the thesis is brief:
 
 - An *association to a confirmed track* is a track update (not a track's start) after
-  which the track has the confirmed weight. NOPA counts them, NOFPA those whose plot is
-  false.
+  which the track has the confirmed weight (`pipeline.tracker.updates.confirmed_associations`,
+  the one definition). NOPA counts them, NOFPA those whose plot is false.
 - MAE is the mean distance between the state of a confirmed track and the target's true
   position at the time of each such update, pooled over all routes.
 - NOMT is the number of tracks that ever became confirmed, averaged over routes.
@@ -19,6 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from pipeline.tracker import registry
+from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.updates import confirmed_associations, positions
 
 # Thesis tables 5.1 and 5.2 (spec section 9).
 THESIS = {
@@ -53,13 +57,13 @@ class RouteCounts:
 
 
 def route_counts(updates: dict[str, np.ndarray], is_target_plot: dict[int, bool], truth_at: callable,
-                 confirmed_weight: float) -> RouteCounts:
-    """Count one route's tracking result. `truth_at(times)` gives the target's true ECEF positions."""
-    associated = updates["association"] != "start"
-    confirmed = associated & (updates["weight"] >= confirmed_weight - 1e-9)
+                 management: TrackManagement) -> RouteCounts:
+    """Count one route's tracking result (an update table, `pipeline.tracker.updates`).
+    `truth_at(times)` gives the target's true ECEF positions."""
+    confirmed = confirmed_associations(updates, management)
     plot_ids = updates["plot_id"][confirmed]
     target = np.array([is_target_plot[int(p)] for p in plot_ids], dtype=bool)
-    states = np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])[confirmed]
+    states = positions(updates)[confirmed]
     errors = np.linalg.norm(states - truth_at(updates["time_unix_s"][confirmed]), axis=1) if confirmed.any() \
         else np.empty(0)
     tracks, lengths = np.unique(updates["track_id"][confirmed], return_counts=True)
@@ -72,16 +76,15 @@ def route_counts(updates: dict[str, np.ndarray], is_target_plot: dict[int, bool]
 
 
 def confirmed_nees(updates: dict[str, np.ndarray], is_target_plot: dict[int, bool], truth_at: callable,
-                   confirmed_weight: float) -> np.ndarray:
+                   management: TrackManagement) -> np.ndarray:
     """Position NEES, (estimate - truth)' P^-1 (estimate - truth), of each confirmed-track update
     with a target plot: 3 on average for a tracker whose covariance tells the truth (NaN for
     trackers that give no covariance)."""
-    associated = updates["association"] != "start"
-    confirmed = associated & (updates["weight"] >= confirmed_weight - 1e-9)
+    confirmed = confirmed_associations(updates, management)
     confirmed &= np.array([is_target_plot[int(p)] for p in updates["plot_id"]], dtype=bool)
     if not confirmed.any():
         return np.empty(0)
-    states = np.column_stack([updates[f"{a}_ecef_m"] for a in "xyz"])[confirmed]
+    states = positions(updates)[confirmed]
     error = states - truth_at(updates["time_unix_s"][confirmed])
     covariance = updates["position_covariance"][confirmed]
     if np.isnan(covariance).any():
@@ -122,10 +125,7 @@ def markdown_table(results: dict[str, dict]) -> str:
             out.append("n/a" if value is None or (isinstance(value, float) and np.isnan(value)) else form.format(value))
         return " | ".join(out)
 
-    labels = {"radius": "radius", "via": "VIA", "mia": "MIA", "ae": "AE", "kalman_cv": "Kalman CV",
-              "kalman_ca": "Kalman CA", "imm": "IMM", "kalman_cv_gnn": "Kalman CV + GNN",
-              "kalman_ca_gnn": "Kalman CA + GNN", "imm_gnn": "IMM + GNN"}
-    order = list(labels)
+    order = list(registry.METHODS)
 
     def position(name: str) -> tuple[int, float]:
         method, window = name.rsplit("_", 1)
@@ -134,7 +134,7 @@ def markdown_table(results: dict[str, dict]) -> str:
     for name in sorted(results, key=position):
         values = results[name]
         method, window = name.rsplit("_", 1)
-        label = f"{labels.get(method, method)} {window}"
+        label = f"{registry.METHODS[method].label if method in registry.METHODS else method} {window}"
         lines.append(f"| {label} | ours | {cells(values)} |")
         if name in THESIS:
             lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")

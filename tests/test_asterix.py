@@ -19,7 +19,7 @@ import pytest
 
 from pipeline import asterix_io, asterix_units as units, cli, io, simulate
 from pipeline.io import InputError
-from pipeline.track_command import read_asterix_recording
+from pipeline.plot_table import read_asterix_plots
 from tests import tracker_fixtures as tf
 from tests.project import run_pipeline, tiny_params_tree, write_params
 
@@ -120,8 +120,8 @@ def test_recording_split_into_two_files_at_midnight_keeps_increasing_times(tmp_p
     plots = quantised_plots(times, rng)
     first = write(tmp_path / "before.ast", asterix_io.encode(plots.slice(0, 5), RADAR, scan_starts(times[:5])))
     second = write(tmp_path / "after.ast", asterix_io.encode(plots.slice(5), RADAR, scan_starts(times[5:])))
-    table, _ = read_asterix_recording([first, second], DAY)
-    np.testing.assert_allclose(table.column("time_unix_s").to_numpy(), times, rtol=0.0,
+    plots = read_asterix_plots([first, second], DAY, tf.make_params().radar)
+    np.testing.assert_allclose(plots.time, times, rtol=0.0,
                                atol=units.TIME_OF_DAY_STEP_S)
 
 

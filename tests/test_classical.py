@@ -24,6 +24,7 @@ from pipeline import (baselines, batch_filters, classical_filters, geodesy, io, 
                       tuning)
 from pipeline.classical_filters import FilterSettings
 from pipeline.params import ParamError, parse_params
+from pipeline.tracker.management import ThesisWeights
 from pipeline.tune_stage import run_tune
 
 DT = 6.0                                  # scan period, s
@@ -424,7 +425,8 @@ def test_scan_ospa_counts_misses_and_false_tracks_at_the_cutoff():
                "plot_id": np.arange(len(rows)), "x_ecef_m": positions[:, 0], "y_ecef_m": positions[:, 1],
                "z_ecef_m": positions[:, 2], "weight": np.array([r[4] for r in rows]),
                "association": np.array([r[5] for r in rows]), "association_error": np.zeros(len(rows))}
-    result = ospa.scan_ospa(updates, np.array([r[0] for r in rows]), confirmed_weight=0.8,
+    rule = ThesisWeights(start=0.2, candidate=0.6, confirmed_weight=0.8, step=0.2, silence_s=12.0)
+    result = ospa.scan_ospa(updates, np.array([r[0] for r in rows]), management=rule,
                             scans_in_coverage=np.array([0, 1, 4]), all_scans=np.arange(5), truth_at=truth_at,
                             cutoff=1000.0, order=2.0)
     np.testing.assert_allclose(result, [1000.0, 300.0, 0.0, 1000.0, 1000.0])

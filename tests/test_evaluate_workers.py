@@ -43,6 +43,7 @@ def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
     keep = time <= np.array([first[s] for s in scenario]) + KEPT_S
     io.write_parquet(plots.filter(pa.array(keep)), folder / "simulated" / split.name / "plots.parquet")
     io.write_parquet(truth, folder / "simulated" / split.name / "truth.parquet")
+    io.write_parquet(simulate.radar_description(params), folder / "simulated" / split.name / "radar.parquet")
     io.write_parquet(route_table, folder / "routes" / f"{split.name}.parquet")
     models = folder / "models"
     models.mkdir()

@@ -16,12 +16,13 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import classical_filters, cli, geodesy, io
-from pipeline.evaluate_stage import load_tracker_models
-from pipeline.tracker.estimators import NetworkEstimator
-from pipeline.tracker.kalman import KalmanEstimator, MahalanobisGate
-from pipeline.tracker.run import track_plots
-from pipeline.tracker.tracks import LiveTracks, Track, status
+from pipeline import cli, io, plot_table
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.network_estimator import NetworkEstimator
+from pipeline.tracker.run import track
+from pipeline.tracker.tracks import LiveTracks
 from pipeline.track_command import run_track, track_recording
 from tests import tracker_fixtures as tf
 from tests.project import write_params
@@ -50,15 +51,17 @@ def models(models_dir):
 
 def run(features: np.ndarray, plot_ids: np.ndarray, method: str, models, params, window_m: float = WINDOW_M
         ) -> dict[str, np.ndarray]:
-    return track_plots(features, plot_ids, method, window_m, models, params.tracker, radar=params.radar)
+    return track(tf.plots_of(features, plot_ids, params.radar),
+                 registry.compose(method, models, params.tracker, window_m, params.tracker.seed))
 
 
-def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:
-    """Plot ids of each track, in update order."""
-    out: dict[int, list[int]] = {}
-    for track_id, plot_id in zip(updates["track_id"].tolist(), updates["plot_id"].tolist()):
-        out.setdefault(track_id, []).append(plot_id)
-    return out
+def recording_plots(plots: pa.Table, radars: pa.Table, params, source: str = "test") -> plot_table.Plots:
+    """The plot table of a `track` input table and radar description."""
+    return plot_table.plot_table(plots, plot_table.sensors(radars, params.radar), source)
+
+
+def status(weight: float, tracker) -> str:
+    return ThesisWeights.from_params(tracker).status(weight)
 
 
 def expected_weights(count: int) -> list[float]:
@@ -80,10 +83,13 @@ def test_trained_predictor_extrapolates_a_straight_track_within_a_few_hundred_me
             flight = tf.straight_features(params.radar, (distance * np.sin(bearing), distance * np.cos(bearing),
                                                          rng.uniform(2000.0, 11000.0)),
                                           (speed * np.sin(heading), speed * np.cos(heading), 0.0), states + 1)
-            track = Track(0, list(flight[:states]), list(flight[:states]), list(range(states)))
-            predicted, padded = estimator.predict([track], flight[states:, 0])
-            assert padded[0] == 5 - states
-            errors.append(np.linalg.norm(predicted[0, 1:4] - flight[states, 1:4]))
+            live = LiveTracks(tf.plots_of(flight, np.arange(states + 1), params.radar),
+                              ThesisWeights.from_params(params.tracker))
+            slot = np.array([live.start(0)])
+            live.tracks[slot[0]].memory = list(flight[:states])
+            assert estimator.state_windows(live, slot, flight[states, 0])[1][0] == 5 - states
+            predicted = estimator.predict(live, slot, flight[states, 0])
+            errors.append(np.linalg.norm(predicted.positions[0] - flight[states, 1:4]))
         assert np.max(errors) < 500.0 and np.mean(errors) < 250.0, (states, np.mean(errors), np.max(errors))
 
 
@@ -114,9 +120,8 @@ def test_straight_target_without_clutter_gives_one_confirmed_track_holding_every
     assert np.isnan(updates["association_error"][0])
     assert ((updates["association_error"][1:] >= 0.0) & (updates["association_error"][1:] < 1.0)).all()
     # A track's start is its plot; the time of every update is its plot's.
-    np.testing.assert_array_equal(np.array([updates[c][0] for c in ("time_unix_s", "x_ecef_m", "y_ecef_m", "z_ecef_m",
-                                                                     "range_m")]),
-                                  features[0])
+    np.testing.assert_array_equal(np.array([updates[c][0] for c in ("time_unix_s", "x_ecef_m", "y_ecef_m", "z_ecef_m")]),
+                                  features[0, :4])
     np.testing.assert_array_equal(updates["time_unix_s"], features[:, 0])
 
 
@@ -135,7 +140,8 @@ def test_straight_noisy_target_stays_one_track_with_via(models, params):
 
 @pytest.mark.parametrize("method", (*METHODS, "oracle"))
 def test_no_plots_give_no_updates(method, models, params):
-    updates = run(np.empty((0, 5)), np.empty(0, dtype=np.int64), method, models, params)
+    updates = track(tf.plots_of(np.empty((0, 5)), np.empty(0, dtype=np.int64), params.radar, np.empty(0)),
+                    registry.compose(method, models, params.tracker, WINDOW_M, params.tracker.seed))
     assert all(len(values) == 0 for values in updates.values())
     assert updates["position_covariance"].shape == (0, 3, 3)
 
@@ -175,16 +181,16 @@ def test_target_in_clutter_keeps_its_own_plots(method, models, params):
 
 # ----------------------------------------------------------------------------- 1c: deletion
 
-def plot_at(time: float) -> np.ndarray:
-    return np.array([time, 2.9e6, 1.3e6, 5.5e6, 1.0e5])
-
-
-def live_track(params, weight_steps: int, time: float = 0.0) -> LiveTracks:
-    """One live track started at `time`, then associated `weight_steps` times at the same instant."""
-    live = LiveTracks()
-    slot = live.start(plot_at(time), 0, params.tracker.weight_start, params.tracker.silence_s)
-    for n in range(weight_steps):
-        live.associate(slot, plot_at(time), n + 1, plot_at(time), params.tracker)
+def live_track(params, weight_steps: int, time: float = 0.0, later: tuple[float, ...] = ()) -> LiveTracks:
+    """One live track started at `time`, then associated `weight_steps` times at the same instant; its
+    plots table also holds plots at the `later` times (rows weight_steps + 1 on), not yet associated."""
+    times = np.array([time] * (weight_steps + 1) + list(later))
+    features = np.column_stack([times, np.tile([2.9e6, 1.3e6, 5.5e6, 1.0e5], (len(times), 1))])
+    live = LiveTracks(tf.plots_of(features, np.arange(len(times)), params.radar),
+                      ThesisWeights.from_params(params.tracker))
+    slot = live.start(0)
+    for row in range(1, weight_steps + 1):
+        live.associate(slot, row, features[row, 1:4])
     return live
 
 
@@ -197,9 +203,9 @@ def test_documented_weights_and_silence(params):
 def test_new_track_is_deleted_after_one_silence_period(params):
     """Start weight 0.4: still alive 11.999 s later; at 12.001 s lowered at the start weight, so deleted."""
     live = live_track(params, 0, time=100.0)
-    assert live.manage(111.999, params.tracker) == []
+    assert live.manage(111.999) == []
     assert len(live) == 1 and live.weight[live.alive][0] == pytest.approx(0.4)
-    removed = live.manage(112.001, params.tracker)
+    removed = live.manage(112.001)
     assert [track.track_id for track in removed] == [0] and len(live) == 0
 
 
@@ -207,20 +213,20 @@ def test_confirmed_track_drops_to_candidate_after_12_s_and_is_deleted_after_24_s
     """Weight 1.0 (three associations at t=100): 1.0 until 112, 0.8 from 112 to 124, deleted after 124."""
     live = live_track(params, 3, time=100.0)
     assert live.weight[live.alive][0] == pytest.approx(1.0)
-    assert live.manage(111.999, params.tracker) == [] and live.weight[live.alive][0] == pytest.approx(1.0)
-    assert live.manage(112.001, params.tracker) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
-    assert live.manage(123.999, params.tracker) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
-    removed = live.manage(124.001, params.tracker)
-    assert len(removed) == 1 and len(removed[0].plots) == 4 and len(live) == 0
+    assert live.manage(111.999) == [] and live.weight[live.alive][0] == pytest.approx(1.0)
+    assert live.manage(112.001) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
+    assert live.manage(123.999) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
+    removed = live.manage(124.001)
+    assert len(removed) == 1 and len(removed[0].rows) == 4 and len(live) == 0
 
 
 def test_two_silence_periods_in_one_call_delete_a_confirmed_track(params):
     """Management first run 24.001 s after the last association lowers twice: 1.0 -> 0.8 -> deleted;
     23.999 s after it lowers once."""
     once = live_track(params, 3)
-    assert once.manage(23.999, params.tracker) == [] and once.weight[once.alive][0] == pytest.approx(0.8)
+    assert once.manage(23.999) == [] and once.weight[once.alive][0] == pytest.approx(0.8)
     twice = live_track(params, 3)
-    assert len(twice.manage(24.001, params.tracker)) == 1 and len(twice) == 0
+    assert len(twice.manage(24.001)) == 1 and len(twice) == 0
 
 
 @pytest.mark.parametrize("steps, after_12_s", [(2, None), (1, 0.4), (0, None)])
@@ -229,24 +235,24 @@ def test_lower_weights_die_at_the_candidate_or_start_weight(params, steps, after
     lowered to 0.4 at 12 s and deleted at 24 s; a new track (0.4) is deleted at 12 s. (None: deleted.)"""
     live = live_track(params, steps)
     assert live.weight[live.alive][0] == pytest.approx(0.4 + 0.2 * steps)
-    assert live.manage(11.999, params.tracker) == [] and len(live) == 1
-    live.manage(12.001, params.tracker)
+    assert live.manage(11.999) == [] and len(live) == 1
+    live.manage(12.001)
     if after_12_s is None:
         assert len(live) == 0
         return
     assert len(live) == 1 and live.weight[live.alive][0] == pytest.approx(after_12_s)
-    assert live.manage(23.999, params.tracker) == [] and len(live) == 1
-    assert len(live.manage(24.001, params.tracker)) == 1 and len(live) == 0
+    assert live.manage(23.999) == [] and len(live) == 1
+    assert len(live.manage(24.001)) == 1 and len(live) == 0
 
 
 def test_an_association_restarts_the_silence_clock(params):
     """Associated again at t=10, a confirmed track is not lowered at 12.001 but at 22.001."""
-    live = live_track(params, 3)
+    live = live_track(params, 3, later=(10.0,))
     slot = int(np.flatnonzero(live.alive)[0])
-    live.associate(slot, plot_at(10.0), 9, plot_at(10.0), params.tracker)
-    assert live.manage(12.001, params.tracker) == [] and live.weight[slot] == pytest.approx(1.0)
-    assert live.manage(21.999, params.tracker) == [] and live.weight[slot] == pytest.approx(1.0)
-    assert live.manage(22.001, params.tracker) == [] and live.weight[slot] == pytest.approx(0.8)
+    live.associate(slot, 4, live.plots.position[4])
+    assert live.manage(12.001) == [] and live.weight[slot] == pytest.approx(1.0)
+    assert live.manage(21.999) == [] and live.weight[slot] == pytest.approx(1.0)
+    assert live.manage(22.001) == [] and live.weight[slot] == pytest.approx(0.8)
 
 
 @pytest.mark.parametrize("gap_s, same_track", [(18.0, True), (30.0, False)])
@@ -279,7 +285,7 @@ def test_two_targets_far_apart_give_two_tracks_of_their_own_plots(method, models
     b = tf.straight_features(params.radar, (-50e3, 60e3, 6000.0), (0.0, -150.0, 0.0), 25, t_offset=2.5)
     features, ids = tf.merge((a, np.arange(25)), (b, 100 + np.arange(25)))
     updates = run(features, ids, method, models, params)
-    tracks = tracks_of(updates)
+    tracks = tf.tracks_of(updates)
     assert sorted(tracks.values()) == [list(range(25)), list(range(100, 125))]
     for track_id in tracks:
         weights = updates["weight"][updates["track_id"] == track_id]
@@ -328,14 +334,14 @@ def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_enu_frame
         index = measured.schema.get_field_index(name)
         measured = measured.set_column(index, measured.schema.field(name),
                                        pa.array(measured.column(name).to_numpy() + values))
-    results = [track_recording(measured, tf.radar_table(1, radar), "via", WINDOW_M, params, enu_models_dir, "test")
-               for radar in radars]
+    results = [track_recording(recording_plots(measured, tf.radar_table(1, radar), params), "via", WINDOW_M, params,
+                               enu_models_dir) for radar in radars]
     finland, australia = results
     assert finland.num_rows == australia.num_rows == len(ids)
     for column in ("track_id", "plot_id", "association", "status", "time_unix_s", "radar_id", "scenario_id"):
         assert finland.column(column).to_pylist() == australia.column(column).to_pylist(), column
     np.testing.assert_allclose(finland.column("weight").to_numpy(), australia.column("weight").to_numpy(), atol=1e-12)
-    tracks = tracks_of({name: finland.column(name).to_numpy() for name in ("track_id", "plot_id")})
+    tracks = tf.tracks_of({name: finland.column(name).to_numpy() for name in ("track_id", "plot_id")})
     assert list(range(30)) in tracks.values() and list(range(100, 130)) in tracks.values()
     assert finland.column("status").to_pylist().count("confirmed") >= 50
     ecef = [np.column_stack([table.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"]) for table in results]
@@ -344,10 +350,9 @@ def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_enu_frame
     assert np.linalg.norm(ecef[0] - ecef[1], axis=1).min() > 1e6
     # ... and agree in their own radar's frame.
     np.testing.assert_allclose(enu[0], enu[1], rtol=0.0, atol=50.0)
-    # Range is a network output too, but scaled by R_max = 400 km instead of the 2 km position span:
-    # the same tiny output difference is 200 times larger in metres of range.
+    # The output range is from each plot's radar to the track's position, so it agrees as the positions do.
     np.testing.assert_allclose(finland.column("range_m").to_numpy(), australia.column("range_m").to_numpy(),
-                               rtol=0.0, atol=1000.0)
+                               rtol=0.0, atol=50.0)
 
 
 # ----------------------------------------------------------------------------- 5: bad input for `track`
@@ -371,16 +376,9 @@ def assert_same_table(got: pa.Table, expected: pa.Table) -> None:
                                       expected.column(name).to_numpy(zero_copy_only=False), err_msg=name)
 
 
-def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Path, Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    pq.write_table(plots, folder / "plots.parquet")
-    pq.write_table(radars, folder / "radar.parquet")
-    return folder / "plots.parquet", folder / "radar.parquet"
-
-
 def test_track_recording_tracks_the_target(recording, params, models_dir):
     plots, radars = recording
-    table = track_recording(plots, radars, "via", WINDOW_M, params, models_dir, "test")
+    table = track_recording(recording_plots(plots, radars, params), "via", WINDOW_M, params, models_dir)
     assert table.num_rows == plots.num_rows
     target = table.filter(pc.less(table.column("plot_id"), 100))
     assert len(set(target.column("track_id").to_pylist())) == 1
@@ -392,7 +390,7 @@ def test_track_recording_tracks_the_target(recording, params, models_dir):
 def test_plots_missing_a_column_name_the_file_and_column_and_write_nothing(recording, params, models_dir, tmp_path,
                                                                            caplog):
     """`track --plots` without azimuth_deg: exit 2, the file and the column named, no output."""
-    plots_path, radar_path = write_recording(tmp_path, recording[0].drop_columns(["azimuth_deg"]), recording[1])
+    plots_path, radar_path = tf.write_recording(tmp_path, recording[0].drop_columns(["azimuth_deg"]), recording[1])
     params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
     out = tmp_path / "tracks.parquet"
     code = cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
@@ -408,7 +406,7 @@ def test_nan_range_names_the_column_and_writes_nothing(recording, params, models
     range_m[7] = np.nan
     plots = plots.set_column(plots.schema.get_field_index("range_m"), plots.schema.field("range_m"),
                              pa.array(range_m))
-    plots_path, radar_path = write_recording(tmp_path, plots, radars)
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match=r"column 'range_m' is NaN in 1 rows") as error:
         run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -419,7 +417,7 @@ def test_nan_range_names_the_column_and_writes_nothing(recording, params, models
 def test_plots_of_a_radar_not_in_the_description_are_refused(recording, params, models_dir, tmp_path):
     plots, _ = recording
     other = tf.radar_table(9, params.radar)
-    plots_path, radar_path = write_recording(tmp_path, plots, other)
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, other)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match="radar id 1") as error:
         run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -432,9 +430,9 @@ def test_models_built_with_another_scaler_are_refused(recording, models_dir, tmp
     model file and 'scaler', before tracking, and no output."""
     other = tf.make_params({"windows.position_max_diff_m": 500.0})
     with pytest.raises(io.InputError, match="scaler") as error:
-        load_tracker_models(models_dir, other, ["via"])
+        load_models(models_dir, other, ["via"])
     assert str(models_dir / "predictor.pt") in str(error.value)
-    plots_path, radar_path = write_recording(tmp_path, *recording)
+    plots_path, radar_path = tf.write_recording(tmp_path, *recording)
     out = tmp_path / "tracks.parquet"
     with pytest.raises(io.InputError, match="scaler"):
         run_track(other, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, out)
@@ -447,13 +445,14 @@ def test_plots_out_of_time_order_are_sorted(recording, params, models_dir, tmp_p
     order = np.argsort(plots.column("time_unix_s").to_numpy(), kind="stable")
     assert np.unique(plots.column("time_unix_s").to_numpy()).size == plots.num_rows  # no ties to reorder
     shuffled = plots.take(np.random.default_rng(4).permutation(plots.num_rows))
-    expected = track_recording(plots.take(order), radars, "via", WINDOW_M, params, models_dir, "sorted")
+    expected = track_recording(recording_plots(plots.take(order), radars, params), "via", WINDOW_M, params, models_dir)
     with caplog.at_level("WARNING", logger="pipeline"):
-        got = track_recording(shuffled, radars, "via", WINDOW_M, params, models_dir, "shuffled")
+        got = track_recording(recording_plots(shuffled, radars, params, "shuffled"), "via", WINDOW_M, params,
+                              models_dir)
     assert_same_table(got, expected)
     assert "out of time order" in caplog.text
     # Through the command too: the file written is the same.
-    plots_path, radar_path = write_recording(tmp_path, shuffled, radars)
+    plots_path, radar_path = tf.write_recording(tmp_path, shuffled, radars)
     run_track(params, plots_path, radar_path, [], None, "via", WINDOW_M, models_dir, tmp_path / "tracks.parquet")
     assert_same_table(pq.read_table(tmp_path / "tracks.parquet"), expected)
 
@@ -464,84 +463,5 @@ def test_mia_tracks_a_recording_without_scenario_ids(recording, params, models_d
     plots, radars = recording
     plots = plots.set_column(plots.schema.get_field_index("scenario_id"), plots.schema.field("scenario_id"),
                              pa.nulls(plots.num_rows, pa.int32()))
-    table = track_recording(plots, radars, "mia", WINDOW_M, params, models_dir, "no scenario")
+    table = track_recording(recording_plots(plots, radars, params), "mia", WINDOW_M, params, models_dir)
     assert table.num_rows == plots.num_rows
-
-
-def test_mahalanobis_gate_accepts_the_next_plot_and_rejects_one_5_km_off(params):
-    """The classical gate: after 10 plots of a straight flight the Kalman prediction takes the 11th plot
-    (normalised error below 1) and rejects the same plot moved 5 km east (infinite error)."""
-    features = tf.straight_features(params.radar, (60e3, -40e3, 9000.0), (200.0, 50.0, 0.0), 11)
-    estimator = KalmanEstimator(params.radar, tf.untuned_filters(params)["cv"])
-    track = Track(0, [features[0]], [features[0]], [0])
-    for plot in features[1:10]:
-        track.states.append(estimator.update(track, plot, plot))
-        track.plots.append(plot)
-    gate = MahalanobisGate(estimator, params.tracker.kalman_gate_probability)
-    moved = features[10].copy()
-    moved[1:4] += 5000.0 * geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg)[0]
-    assert gate([track], features[10]).errors[0] < 1.0
-    assert np.isinf(gate([track], moved).errors[0])
-
-
-def noisy_turning_flight(params, rng: np.random.Generator) -> np.ndarray:
-    """[t, x, y, z, r] plots of a 220 m/s flight turning at 2 deg/s, 50 m noise, one scan missed."""
-    elapsed = np.delete(np.arange(16) * tf.SCAN_S, 7)
-    heading = np.radians(2.0) * elapsed
-    enu = np.column_stack([80e3 + 220.0 / np.radians(2.0) * (1.0 - np.cos(heading)),
-                           -30e3 + 220.0 / np.radians(2.0) * np.sin(heading), np.full(len(elapsed), 9000.0)])
-    return tf.enu_to_features(tf.T0 + elapsed, enu + rng.normal(0.0, 50.0, enu.shape), params.radar)
-
-
-@pytest.mark.parametrize("kind", classical_filters.KINDS)
-def test_classical_estimator_gives_filterpys_estimates_step_by_step(params, kind):
-    """The tracker's per-track filters (NumPy arrays stepped with `pipeline.batch_filters`) against
-    filterpy's objects (`pipeline.classical_filters`): at every plot of a turning flight, the
-    prediction the gate scores with and the state and covariance after the update are filterpy's
-    to floating-point rounding; the IMM's prediction is its own predicted density (c-bar mixing)."""
-    settings = tf.untuned_filters(params)[kind]
-    measured = np.ix_(settings.measured, settings.measured)
-    features = noisy_turning_flight(params, np.random.default_rng(21))
-    estimator = KalmanEstimator(params.radar, settings)
-    track = Track(0, [features[0]], [features[0]], [0])
-    reference = classical_filters.start_filter(settings, features[0, 1:4],
-                                               estimator.measurement_covariance(features[0, 1:4]))
-    for previous, plot in zip(features[:-1], features[1:]):
-        positions, covariances = estimator.predicted_positions([track], plot[0])
-        state, covariance = classical_filters.predicted_gaussian(reference, settings, plot[0] - previous[0])
-        np.testing.assert_allclose(positions[0], state[settings.measured], rtol=1e-12, atol=1e-6)
-        np.testing.assert_allclose(covariances[0], covariance[measured], rtol=1e-9, atol=1e-6)
-        updated = estimator.update(track, plot, None)
-        track.plots.append(plot)
-        track.states.append(updated)
-        classical_filters.advance(reference, settings, plot[0] - previous[0])
-        classical_filters.update(reference, plot[1:4], estimator.measurement_covariance(plot[1:4]))
-        state, covariance = classical_filters.posterior(reference)
-        np.testing.assert_allclose(updated[1:4], state[settings.measured], rtol=1e-12, atol=1e-6)
-        assert updated[0] == plot[0] and updated[4] == pytest.approx(np.linalg.norm(updated[1:4] - estimator.site))
-        np.testing.assert_allclose(estimator.position_covariance(track), covariance[measured], rtol=1e-9, atol=1e-6)
-
-
-def test_classical_gate_scores_stacked_tracks_as_each_alone(params):
-    """The gate predicts all candidate tracks of a plot in one batch: the same errors and predictions
-    as scoring each track alone, for tracks of different ages and times (the youngest, last updated
-    a minute before the plot in a turn, rejects it)."""
-    settings = tf.untuned_filters(params)["imm"]
-    estimator = KalmanEstimator(params.radar, settings)
-    gate = MahalanobisGate(estimator, params.tracker.kalman_gate_probability)
-    rng = np.random.default_rng(4)
-    tracks = []
-    for track_id, plots in enumerate((3, 6, 11)):
-        features = noisy_turning_flight(params, rng)[:plots]
-        track = Track(track_id, [features[0]], [features[0]], [0])
-        for plot in features[1:]:
-            track.states.append(estimator.update(track, plot, None))
-            track.plots.append(plot)
-        tracks.append(track)
-    plot = noisy_turning_flight(params, rng)[11]
-    together = gate(tracks, plot)
-    alone = [gate([track], plot) for track in tracks]
-    np.testing.assert_allclose(together.errors, [scores.errors[0] for scores in alone], rtol=1e-12)
-    np.testing.assert_allclose(together.predictions, np.vstack([scores.predictions for scores in alone]),
-                               rtol=1e-12)
-    assert np.isinf(together.errors[0]) and np.isfinite(together.errors[1:]).all()

@@ -1,6 +1,6 @@
 """The tracker metrics (thesis 5.1) on a hand-built tracking result whose every number is worked out below.
 
-Three routes, each an `updates` dict as `track_plots` returns it (keys UPDATE_COLUMNS), the plots'
+Three routes, each an update table as the tracker gives it (`pipeline.tracker.updates`), the plots'
 target/false flags and the target's true position as a function of time:
 
 Route A (truth: x = 100 t, on the x axis), 11 target plots and 3 false plots:
@@ -28,12 +28,14 @@ import numpy as np
 import pytest
 
 from pipeline.params import parse_params
-from pipeline.tracker.run import UPDATE_COLUMNS
+from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.tracks import LiveTracks
+from pipeline.tracker.updates import COLUMNS
+from tests import tracker_fixtures as tf
 from pipeline.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
 from tests.project import default_params_tree
 
-CONFIRMED = 1.0
+RULE = ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2, silence_s=12.0)
 # The weights the tracker reaches by adding 0.2 in floating point (0.4 + 0.2 = 0.6000000000000001).
 W = [0.4, 0.4 + 0.2, 0.4 + 0.2 + 0.2, min(0.4 + 0.2 + 0.2 + 0.2, 1.0)]
 
@@ -50,7 +52,7 @@ def truth_b(t: np.ndarray) -> np.ndarray:
 
 def updates_of(rows: list[tuple], truth) -> dict[str, np.ndarray]:
     """Updates from (track_id, time, plot_id, offset of the state from the truth, weight, association) rows."""
-    columns = {name: [] for name in UPDATE_COLUMNS}
+    columns = {name: [] for name in COLUMNS}
     for track_id, time, plot_id, offset, weight, association in rows:
         state = truth(np.array([time]))[0] + np.asarray(offset, float)
         columns["track_id"].append(track_id)
@@ -58,10 +60,11 @@ def updates_of(rows: list[tuple], truth) -> dict[str, np.ndarray]:
         columns["plot_id"].append(plot_id)
         for axis, value in zip(("x_ecef_m", "y_ecef_m", "z_ecef_m"), state):
             columns[axis].append(value)
-        columns["range_m"].append(float(np.linalg.norm(state)))
+        columns["radar_id"].append(1)
         columns["weight"].append(weight)
         columns["association"].append(association)
         columns["association_error"].append(np.nan if association == "start" else 0.5)
+        columns["position_covariance"].append(np.full((3, 3), np.nan))
     return {name: np.asarray(values) for name, values in columns.items()}
 
 
@@ -106,20 +109,21 @@ TARGET_C = {200: True, 201: False}
 
 @pytest.fixture(scope="module")
 def counts() -> list[RouteCounts]:
-    return [route_counts(updates_of(ROUTE_A, truth_a), TARGET_A, truth_a, CONFIRMED),
-            route_counts(updates_of(ROUTE_B, truth_b), TARGET_B, truth_b, CONFIRMED),
-            route_counts(updates_of(ROUTE_C, truth_a), TARGET_C, truth_a, CONFIRMED)]
+    return [route_counts(updates_of(ROUTE_A, truth_a), TARGET_A, truth_a, RULE),
+            route_counts(updates_of(ROUTE_B, truth_b), TARGET_B, truth_b, RULE),
+            route_counts(updates_of(ROUTE_C, truth_a), TARGET_C, truth_a, RULE)]
 
 
 def test_the_hand_built_weights_are_the_trackers():
-    """W is what LiveTracks holds after a start and three associations, floating point and all."""
-    params = parse_params(default_params_tree()).tracker
-    live = LiveTracks()
-    plot = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
-    slot = live.start(plot, 0, params.weight_start, params.silence_s)
+    """W is what LiveTracks holds after a start and three associations, floating point and all, and
+    RULE is the default params' rule."""
+    params = parse_params(default_params_tree())
+    assert ThesisWeights.from_params(params.tracker) == RULE
+    live = LiveTracks(tf.plots_of(np.tile([0.0, 1.0, 2.0, 3.0, 4.0], (4, 1)), np.arange(4), params.radar), RULE)
+    slot = live.start(0)
     weights = [live.weight[slot]]
-    for plot_id in range(1, 4):
-        live.associate(slot, plot, plot_id, plot, params)
+    for row in range(1, 4):
+        live.associate(slot, row, live.plots.position[row])
         weights.append(live.weight[slot])
     assert weights == W
 

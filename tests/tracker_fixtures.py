@@ -19,13 +19,15 @@ from typing import Any, Mapping
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pymap3d
 
-from pipeline import geodesy, materials, model_eval
+from pipeline import baselines, geodesy, materials, model_eval
 from pipeline.model_eval import output_scaler
 from pipeline.model_store import LoadedModel, load_model, save_model
 from pipeline.params import Params, Radar, parse_params
 from pipeline.classical_filters import KINDS, FilterSettings
+from pipeline.plot_table import NO_SCENARIO, NO_TARGET, PLOT_INPUT_SCHEMA, RADAR_INPUT_SCHEMA, Plots
 from pipeline.tracker.models import Models
 from pipeline.tune_stage import start_settings
 from pipeline.train_stage import network_config
@@ -253,14 +255,24 @@ def load_models(folder: Path) -> Models:
                   load_model(folder / "autoencoder.pt", "autoencoder"), filters=untuned_filters(make_params()))
 
 
+def plots_of(features: np.ndarray, plot_ids: np.ndarray, radar: Radar, target_ids: np.ndarray | None = None
+             ) -> Plots:
+    """The plot table of [t, x, y, z, r] rows (time order) seen by `radar`, with its measurement
+    covariances; `target_ids` (NO_TARGET for false plots) when the truth is known."""
+    n = len(features)
+    return Plots(np.asarray(plot_ids, dtype=np.int64), np.full(n, radar.radar_id, np.int32),
+                 np.full(n, NO_SCENARIO, np.int32), features[:, 0], features[:, 1:4], features[:, 4],
+                 baselines.measurement_covariance(features[:, 1:4], radar),
+                 np.full(n, NO_TARGET, np.int32) if target_ids is None else np.asarray(target_ids, np.int32),
+                 target_ids is not None, {radar.radar_id: radar})
+
+
 # ----------------------------------------------------------------------------- recordings for `track`
 
 def measurement_table(features: np.ndarray, plot_ids: np.ndarray, radar: Radar, radar_id: int,
                       scenario_id: int | None = None) -> pa.Table:
     """A `track` input table (PLOT_INPUT_SCHEMA) of ECEF plots seen from `radar`: exact slant range,
     azimuth and altitude."""
-    from pipeline.track_command import PLOT_INPUT_SCHEMA
-
     slant, azimuth, altitude = geodesy.true_measurement(features[:, 1:4], radar)
     n = len(features)
     return pa.Table.from_pydict({
@@ -268,12 +280,27 @@ def measurement_table(features: np.ndarray, plot_ids: np.ndarray, radar: Radar, 
         "time_unix_s": features[:, 0], "range_m": slant, "azimuth_deg": azimuth, "altitude_m": altitude,
         "scenario_id": pa.array(np.full(n, -1 if scenario_id is None else scenario_id, np.int32),
                                 mask=np.full(n, scenario_id is None)),
+        "target_id": pa.nulls(n, pa.int32()),
     }, schema=PLOT_INPUT_SCHEMA)
 
 
 def radar_table(radar_id: int, radar: Radar) -> pa.Table:
-    from pipeline.track_command import RADAR_INPUT_SCHEMA
-
     return pa.Table.from_pylist([{"radar_id": radar_id, "latitude_deg": radar.latitude_deg,
                                   "longitude_deg": radar.longitude_deg, "height_m": radar.height_m}],
                                 schema=RADAR_INPUT_SCHEMA)
+
+
+def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Path, Path]:
+    """`track`'s Parquet input: the plots and the radar description written in `folder`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    pq.write_table(plots, folder / "plots.parquet")
+    pq.write_table(radars, folder / "radar.parquet")
+    return folder / "plots.parquet", folder / "radar.parquet"
+
+
+def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:
+    """Plot ids of each track of an update table, in update order."""
+    out: dict[int, list[int]] = {}
+    for track_id, plot_id in zip(updates["track_id"].tolist(), updates["plot_id"].tolist()):
+        out.setdefault(track_id, []).append(plot_id)
+    return out

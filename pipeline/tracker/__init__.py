@@ -1,1 +1,2 @@
-"""The neural tracker: tracks and management, estimators, association gates, the tracking loop."""
+"""The tracker: one loop (`run`) over roles (`estimator`, `gate`, `assigner`, `management`), their
+implementations, and the registry of methods composed from them (`registry`)."""

@@ -1,187 +1,101 @@
-"""Classical estimators and gates for the same tracker: tuned CV, CA or IMM filters with
-chi-square gating on the Mahalanobis distance.
+"""The classical estimator: a tuned CV, CA or IMM filter per track (`pipeline.classical_filters`),
+stepped by the one Kalman core (`pipeline.batch_filters`), an `Estimator`.
 
-They plug into the tracking loop exactly where the networks do (same track management,
-pre-filter and deletion), so the comparison with the neural tracker is on identical
-plots, rules and metrics. Each track keeps its own filter in ECEF (see
-`pipeline.classical_filters`), started at its first plot with the velocity unknown up to
-the tuned spread. Measurements carry the converted-measurement covariance of the radar's
-range, azimuth and altitude errors (`pipeline.baselines.measurement_covariance`).
+Every live track's filter sits in arrays by slot: each motion model's state x (S, M, n) and
+covariance P (S, M, n, n), the mode probabilities mu (S, M) and the time it is at (S,). What
+is stored is what the next prediction starts from: after an update the IMM's mixed models and
+predicted mode probabilities (`batch_filters.mixed`), a single filter's posterior. A track's
+filter is started at its first plot, with the velocity unknown up to the tuned spread, when
+the track is first predicted (clutter tracks, most of them, never are). The filters run in
+ECEF: with the same noise on every axis this is the same as a local east-north-up frame
+(`pipeline.motion_models`).
 
-A track's filter is NumPy arrays stepped with filterpy's equations (`KalmanFilter`,
-`IMMEstimator`: Joseph-form update, Gaussian likelihoods, here in log space), which the tests
-check against filterpy's objects step by step. filterpy's objects gave the same numbers but
-cost about 1 ms per IMM step in Python; here a track keeps what its next prediction starts
-from (for the IMM the mixed models and predicted mode probabilities, computed once per
-update), the transition and process noise are made once per distinct time step (plot times
-are quantised), and the gate predicts all candidate tracks of a plot in one batch.
-`pipeline.batch_filters` holds the same equations laid out for tuning, many long sequences
-stepped side by side.
-
-Gating: d^2 = y' S^-1 y with S = H P H' + R, inside the gate when d^2 is below the chi-square
-quantile of `kalman_gate_probability` (3 degrees of freedom); the normalised error is
-d^2 / quantile.
+`predict` moves the candidate tracks' filters to the plot's time in one batch (F and Q made
+once per distinct time step, plot times being quantised) and gives the combined position and
+its covariance (the IMM's own predicted density, mixed with the predicted mode probabilities);
+`update` resumes from that prediction's state with the plot's own measurement covariance (its
+radar's) and stores the result.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-from scipy.stats import chi2
 
-from pipeline import baselines, geodesy, motion_models
+from pipeline import batch_filters, motion_models
+from pipeline.batch_filters import BatchState
 from pipeline.classical_filters import FilterSettings
-from pipeline.params import Radar
-from pipeline.tracker.association import Scores
-from pipeline.tracker.tracks import Track
-
-LOG_NORMALISER = 3 * np.log(2 * np.pi)  # of a 3-dimensional Gaussian density
-
-
-@dataclass
-class TrackFilter:
-    """One track's filter, as what its next prediction starts from: each of its M motion models'
-    state x (M, n) and covariance P (M, n, n) and the predicted mode probabilities cbar (M,) (the
-    IMM's mixed initial conditions; a single Kalman filter's posterior and [1]); the time it is
-    at (s); and the covariance (3 x 3, m^2) of the track's position estimate, for the
-    consistency metrics."""
-
-    x: np.ndarray
-    P: np.ndarray
-    cbar: np.ndarray
-    time: float
-    position_covariance: np.ndarray
-
-
-def mixed(settings: FilterSettings, x: np.ndarray, P: np.ndarray, mu: np.ndarray
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IMM mixing of one track's posterior (x (M, n), P (M, n, n), mode probabilities mu (M,)):
-    each model's starting state and covariance and the predicted mode probabilities, as
-    `IMMEstimator` computes them after an update. A single filter starts from its posterior."""
-    if settings.kind != "imm":
-        return x, P, mu
-    transition = settings.transition_probabilities()
-    cbar = mu @ transition
-    omega = transition * mu[:, None] / cbar[None, :]                  # omega[i, j]: model i in model j's start
-    start = omega.T @ x                                               # (j, n)
-    offset = x[None, :, :] - start[:, None, :]                        # (j, i, n)
-    spread = np.einsum("ij,jinm->jnm", omega, P[None] + offset[..., :, None] * offset[..., None, :])
-    return start, spread, cbar
-
-
-def combined_positions(mu: np.ndarray, x: np.ndarray, P: np.ndarray, measured: list[int]
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """The mode-weighted positions (..., 3) and their covariances (..., 3, 3) of models' states
-    x (..., M, n) and covariances P (..., M, n, n) with probabilities mu (..., M)."""
-    positions = x[..., measured]
-    mean = np.einsum("...m,...mk->...k", mu, positions)
-    offset = positions - mean[..., None, :]
-    spread = P[..., measured, :][..., measured] + offset[..., :, None] * offset[..., None, :]
-    return mean, np.einsum("...m,...mkl->...kl", mu, spread)
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.tracks import LiveTracks
 
 
 class KalmanEstimator:
-    """A classical filter per track, with the network estimator's interface."""
+    """One tuned classical filter per live track."""
 
-    def __init__(self, radar: Radar, settings: FilterSettings) -> None:
-        self.radar, self.settings = radar, settings
-        self.site = geodesy.radar_site_ecef(radar)
-        self.measured = settings.measured
-        self.H = motion_models.measurement_matrix(settings.models[0])
+    gives_covariance = True
+
+    def __init__(self, settings: FilterSettings, capacity: int = 64) -> None:
+        self.settings = settings
+        models, size = len(settings.models), motion_models.state_size(settings.models[0])
+        self.x = np.zeros((capacity, models, size))
+        self.P = np.zeros((capacity, models, size, size))
+        self.mu = np.zeros((capacity, models))
+        self.time = np.zeros(capacity)
+        self.started = np.zeros(capacity, dtype=bool)
         self._motions: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-        self._last_covariance: tuple[bytes, np.ndarray] = (b"", np.empty((3, 3)))
 
-    def measurement_covariance(self, position: np.ndarray) -> np.ndarray:
-        """Converted-measurement covariance (3 x 3, ECEF, m^2) of a plot at `position` (ECEF, m).
-        The last one is kept, since gating a plot and updating a track with it ask for the same."""
-        key = position.tobytes()
-        if key != self._last_covariance[0]:
-            self._last_covariance = (key, baselines.measurement_covariance(position[None], self.radar)[0])
-        return self._last_covariance[1]
+    def _grow(self, capacity: int) -> None:
+        extra = capacity - len(self.time)
+        self.x = np.concatenate([self.x, np.zeros((extra, *self.x.shape[1:]))])
+        self.P = np.concatenate([self.P, np.zeros((extra, *self.P.shape[1:]))])
+        self.mu = np.concatenate([self.mu, np.zeros((extra, *self.mu.shape[1:]))])
+        self.time = np.concatenate([self.time, np.zeros(extra)])
+        self.started = np.concatenate([self.started, np.zeros(extra, dtype=bool)])
+
+    def start(self, tracks: LiveTracks, slot: int) -> None:
+        if slot >= len(self.time):
+            self._grow(len(tracks.tracks))
+        self.started[slot] = False
+
+    def _store(self, slots: np.ndarray | slice, state: BatchState, time: np.ndarray | float) -> None:
+        self.x[slots], self.P[slots], self.mu[slots], self.time[slots] = state.x, state.P, state.mu, time
+
+    def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
+        """Start the filters of the tracks at `slots` not started yet, at their first plots."""
+        fresh = slots[~self.started[slots]]
+        if len(fresh):
+            rows = [tracks.tracks[slot].rows[0] for slot in fresh]
+            plots = tracks.plots
+            started = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
+            self._store(fresh, batch_filters.mixed(self.settings, started), plots.time[rows])
+            self.started[fresh] = True
 
     def motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Each model's transition F and process noise Q (M, n, n each) over dt seconds, made once."""
         found = self._motions.get(dt)
         if found is None:
-            settings = self.settings
-            found = self._motions[dt] = (
-                np.stack([motion_models.transition(model, dt) for model in settings.models]),
-                np.stack([motion_models.process_noise(model, dt, noise)
-                          for model, noise in zip(settings.models, settings.noise_std)]))
+            table = batch_filters.motion(self.settings, np.array([dt]))[0]
+            found = self._motions[dt] = (table[0], table[1])
         return found
 
-    def _filter(self, track: Track) -> TrackFilter:
-        """The track's filter, started at its first plot when first needed (clutter tracks never are)."""
-        if track.estimate is None:
-            first, settings = track.plots[0], self.settings
-            covariance = self.measurement_covariance(first[1:4])
-            pairs = [motion_models.initial_state(model, first[1:4], covariance, settings.velocity_std_mps,
-                                                 settings.acceleration_std_mps2) for model in settings.models]
-            probabilities = settings.initial_probabilities() if settings.kind == "imm" else np.ones(1)
-            track.estimate = TrackFilter(*mixed(settings, np.stack([x for x, _ in pairs]),
-                                                np.stack([P for _, P in pairs]), probabilities), first[0], covariance)
-        return track.estimate
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
+        """The tracks' filters moved to `time`, unchanged: positions (K, 3), covariances (K, 3, 3),
+        and the moved models as the state (a BatchState of K tracks)."""
+        self._start_filters(tracks, slots)
+        motions = [self.motion(dt) for dt in (time - self.time[slots]).tolist()]
+        state = batch_filters.moved(BatchState(self.x[slots], self.P[slots], self.mu[slots]),
+                                    np.stack([F for F, _ in motions]), np.stack([Q for _, Q in motions]))
+        return Prediction(*batch_filters.position_estimates(state), state)
 
-    def predicted_positions(self, tracks: list[Track], time: float) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted positions (N x 3, ECEF m) and their covariances (N x 3 x 3) at `time`, the
-        filters unchanged: for the IMM its own predicted density, the models' predictions mixed
-        with the predicted mode probabilities. All tracks in one batch."""
-        filters = [self._filter(track) for track in tracks]
-        x = np.stack([f.x for f in filters])                          # (N, M, n)
-        P = np.stack([f.P for f in filters])
-        motions = [self.motion(time - f.time) for f in filters]
-        F = np.stack([F for F, _ in motions])                         # (N, M, n, n)
-        Q = np.stack([Q for _, Q in motions])
-        return combined_positions(np.stack([f.cbar for f in filters]), (F @ x[..., None])[..., 0],
-                                  F @ P @ np.swapaxes(F, -1, -2) + Q, self.measured)
-
-    def as_states(self, time: float, positions: np.ndarray) -> np.ndarray:
-        """Rows [t, x, y, z, r] (N x 5) of ECEF positions (N x 3) at one time, r the range to the radar."""
-        return np.column_stack([np.full(len(positions), time), positions,
-                                np.linalg.norm(positions - self.site, axis=1)])
-
-    def update(self, track: Track, plot: np.ndarray, predicted: np.ndarray | None) -> np.ndarray:
-        """Predict the track's filter to the plot and update it with the plot; the new [t, x, y, z, r].
-        (`predicted`, the gate's prediction, is not needed: the filter predicts itself.)"""
-        current, settings, measured = self._filter(track), self.settings, self.measured
-        F, Q = self.motion(plot[0] - current.time)
-        x = (F @ current.x[..., None])[..., 0]                        # (M, n)
-        P = F @ current.P @ np.swapaxes(F, -1, -2) + Q
-        R = self.measurement_covariance(plot[1:4])
-        innovation = plot[1:4] - x[:, measured]                       # (M, 3)
-        S = P[:, measured][:, :, measured] + R
-        gain = np.swapaxes(np.linalg.solve(S, P[:, measured]), -1, -2)  # P H' S^-1: (M, n, 3)
-        x = x + (gain @ innovation[..., None])[..., 0]
-        joseph = np.eye(x.shape[1]) - gain @ self.H
-        P = joseph @ P @ np.swapaxes(joseph, -1, -2) + gain @ R @ np.swapaxes(gain, -1, -2)
-        mu = current.cbar
-        if settings.kind == "imm":
-            distance = np.einsum("mk,mk->m", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
-            log_weight = np.log(current.cbar) - 0.5 * (distance + np.linalg.slogdet(S)[1] + LOG_NORMALISER)
-            weight = np.exp(log_weight - log_weight.max())
-            mu = weight / weight.sum()
-        position, covariance = combined_positions(mu, x, P, measured)
-        track.estimate = TrackFilter(*mixed(settings, x, P, mu), plot[0], covariance)
-        return self.as_states(plot[0], position[None])[0]
-
-    def position_covariance(self, track: Track) -> np.ndarray:
-        """The covariance (3 x 3, m^2) of the track's position estimate after its last update."""
-        return track.estimate.position_covariance
-
-
-class MahalanobisGate:
-    """Chi-square gate on the Mahalanobis distance between the plot and each track's prediction."""
-
-    def __init__(self, estimator: KalmanEstimator, gate_probability: float) -> None:
-        self.estimator = estimator
-        self.threshold = float(chi2.ppf(gate_probability, df=3))
-
-    def __call__(self, tracks: list[Track], plot: np.ndarray) -> Scores:
-        positions, covariances = self.estimator.predicted_positions(tracks, plot[0])
-        innovation = plot[1:4] - positions
-        residual_covariance = covariances + self.estimator.measurement_covariance(plot[1:4])
-        distance = np.einsum("ni,ni->n", innovation,
-                             np.linalg.solve(residual_covariance, innovation[:, :, None])[:, :, 0])
-        return Scores(np.where(distance < self.threshold, distance / self.threshold, np.inf),
-                      self.estimator.as_states(plot[0], positions))
+    def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The track's filter updated with plot `row` (its position and measurement covariance):
+        the new position (3,) and its covariance (3, 3)."""
+        plots = tracks.plots
+        if prediction is None:
+            prediction, index = self.predict(tracks, np.array([slot]), plots.time[row]), 0
+        moved, at = prediction.state, slice(index, index + 1)
+        posterior = batch_filters.updated(self.settings, BatchState(moved.x[at], moved.P[at], moved.mu[at]),
+                                          plots.position[row:row + 1], plots.covariance[row:row + 1])
+        self._store(slice(slot, slot + 1), batch_filters.mixed(self.settings, posterior), plots.time[row])
+        position, covariance = batch_filters.position_estimates(posterior)
+        return position[0], covariance[0]

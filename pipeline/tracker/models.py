@@ -1,27 +1,38 @@
-"""What a tracker runs: the trained networks, each ready for fast batch inference, and the
-tuned classical filters (by kind: cv, ca, imm)."""
+"""What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
+each ready for fast batch inference, and the tuned classical filters by kind (cv, ca, imm)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 from pipeline.classical_filters import FilterSettings
-from pipeline.inference import BatchNetwork
-from pipeline.model_store import LoadedModel
+
+if TYPE_CHECKING:
+    from pipeline.inference import BatchNetwork
+    from pipeline.model_store import LoadedModel
 
 
 @dataclass
 class Models:
-    predictor: LoadedModel
-    filter: LoadedModel
+    """Each piece is None (the networks) or empty (the filters) when no method of the run needs it.
+    `runnable` holds each loaded network as a batch function (`pipeline.inference`, on `backend`)."""
+
+    predictor: LoadedModel | None = None
+    filter: LoadedModel | None = None
     autoencoder: LoadedModel | None = None
-    backend: str = "onnx"
     filters: Mapping[str, FilterSettings] = field(default_factory=dict)
+    backend: str = "onnx"
     runnable: dict[str, BatchNetwork] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        loaded = {"predictor": self.predictor, "filter": self.filter, "autoencoder": self.autoencoder}
-        self.runnable = {kind: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
-                                            self.backend)
-                         for kind, model in loaded.items() if model is not None}
+        loaded = {kind: model for kind, model in (("predictor", self.predictor), ("filter", self.filter),
+                                                  ("autoencoder", self.autoencoder)) if model is not None}
+        self.runnable = {}
+        if loaded:
+            import torch
+
+            from pipeline.inference import BatchNetwork  # imports torch: only when a network is loaded
+            torch.set_num_threads(1)  # the tracker's batches are a few windows: threads only add contention
+            self.runnable = {kind: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
+                                                self.backend) for kind, model in loaded.items()}

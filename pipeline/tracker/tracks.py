@@ -1,14 +1,16 @@
-"""Tracks and their management: weights, confirmation, deletion (thesis 4.4).
+"""The live tracks: fixed slots with array views, for vectorised gating and cheap management.
 
-Weights: a new track starts at `weight_start` (0.4), is a candidate at `weight_candidate`
-(0.8) and confirmed at `weight_confirmed` (1.0). Each association adds `weight_step`
-(0.2, capped at the confirmed weight). A track with no association and no weight change for
-`silence_s` (12 s) loses `weight_step`; a track lowered while at the candidate weight is
-deleted. The thesis does not say what happens to a track lowered at or below the start
-weight: here it is deleted too, so clutter tracks die after one silence period.
+Most plots are clutter that starts a track which dies one silence period later, so slots are
+reused rather than arrays grown and shrunk, and the times at which tracks fall due for lowering
+sit in a heap: management costs nothing until a track is due. A heap entry carries the slot's
+generation, which changes whenever the slot's weight changes or the slot is reused, so stale
+entries are skipped. A free slot's position is infinite, so it is never within the pre-filter
+distance.
 
-The live tracks are kept as NumPy arrays (last position, weight, plot count) so management and the pre-filter are vector operations over all tracks; each
-track's history is a short Python list, touched only when the track is a candidate.
+The state a track shows the loop is its position (ECEF metres) after its last update; what an
+estimator keeps beyond that (a filter's velocity and covariance, a network's past states) the
+estimator keeps, by slot. A track's history is the rows of its plots in the plot table being
+tracked.
 """
 
 from __future__ import annotations
@@ -18,37 +20,31 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.params import TrackerParams
-
-EPSILON = 1e-9
+from pipeline.plot_table import Plots
+from pipeline.tracker.management import TrackManagement
 
 
 @dataclass
 class Track:
-    """History of one track: states and plots as [t, x, y, z, r] rows (ECEF metres, seconds).
-    `estimate` is whatever a classical estimator keeps per track (its filter, `kalman.TrackFilter`)."""
+    """One track: its id (unique within a run), the rows of its plots in the plot table, in
+    association order, and `memory`, what its estimator keeps per track (if it keeps it here)."""
 
     track_id: int
-    states: list[np.ndarray] = field(default_factory=list)
-    plots: list[np.ndarray] = field(default_factory=list)
-    plot_ids: list[int] = field(default_factory=list)
-    estimate: object = None
+    rows: list[int] = field(default_factory=list)
+    memory: object = None
 
 
 class LiveTracks:
-    """The tracks alive now, in fixed slots with array views for vectorised management and gating.
+    """The tracks alive now over the plots `plots`, managed by `management`.
 
-    Most plots are clutter that starts a track which dies one silence period later, so slots
-    are reused rather than arrays grown and shrunk, and the times at which tracks fall due
-    for lowering sit in a heap: management costs nothing until a track is due. A heap entry
-    carries the slot's generation, which changes whenever the slot's weight changes or the
-    slot is reused, so stale entries are skipped. A free slot's position is infinite, so it
-    is never within the pre-filter distance.
-    """
+    Arrays by slot: `position` (S, 3) the last estimated position, `last_plot` (S, 3) the last
+    plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,); `tracks` the Track of each
+    slot (None when free). S grows by doubling when every slot is taken."""
 
-    def __init__(self, capacity: int = 64) -> None:
+    def __init__(self, plots: Plots, management: TrackManagement, capacity: int = 64) -> None:
+        self.plots, self.management = plots, management
         self.tracks: list[Track | None] = [None] * capacity
-        self.last_state = np.full((capacity, 3), np.inf)
+        self.position = np.full((capacity, 3), np.inf)
         self.last_plot = np.full((capacity, 3), np.inf)
         self.weight = np.zeros(capacity)
         self.plot_count = np.zeros(capacity, dtype=np.int64)
@@ -64,7 +60,7 @@ class LiveTracks:
     def _grow(self) -> None:
         capacity = len(self.tracks)
         self.tracks.extend([None] * capacity)
-        self.last_state = np.vstack([self.last_state, np.full((capacity, 3), np.inf)])
+        self.position = np.vstack([self.position, np.full((capacity, 3), np.inf)])
         self.last_plot = np.vstack([self.last_plot, np.full((capacity, 3), np.inf)])
         self.weight = np.concatenate([self.weight, np.zeros(capacity)])
         self.plot_count = np.concatenate([self.plot_count, np.zeros(capacity, dtype=np.int64)])
@@ -72,51 +68,57 @@ class LiveTracks:
         self._generation.extend([0] * capacity)
         self._free = list(range(2 * capacity - 1, capacity - 1, -1))
 
-    def start(self, plot: np.ndarray, plot_id: int, weight: float, silence_s: float) -> int:
-        """A new track from one plot; its state is the plot. Returns its slot."""
+    def near(self, row: int, distance_m: float) -> np.ndarray:
+        """Slots (sorted) of the tracks whose position is within `distance_m` of plot `row`."""
+        offset = self.position - self.plots.position[row]
+        return np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < distance_m ** 2)
+
+    def start(self, row: int) -> int:
+        """A new track from plot `row`; its position is the plot's. Returns its slot."""
         if not self._free:
             self._grow()
         slot = self._free.pop()
-        self.tracks[slot] = Track(self._next_id, [plot.copy()], [plot.copy()], [plot_id])
+        self.tracks[slot] = Track(self._next_id, [row])
         self._next_id += 1
-        self.last_state[slot] = plot[1:4]
-        self.last_plot[slot] = plot[1:4]
-        self.weight[slot] = weight
+        self.position[slot] = self.last_plot[slot] = self.plots.position[row]
+        self.weight[slot] = self.management.start
         self.plot_count[slot] = 1
         self.alive[slot] = True
-        self._schedule(slot, plot[0] + silence_s)
+        self._schedule(slot, self.plots.time[row] + self.management.silence_s)
         return slot
 
     def _schedule(self, slot: int, due: float) -> None:
         self._generation[slot] += 1
         heapq.heappush(self._due, (due, slot, self._generation[slot]))
 
-    def associate(self, slot: int, plot: np.ndarray, plot_id: int, state: np.ndarray, params: TrackerParams) -> None:
-        """Add a plot and the updated state to a track, raising its weight."""
-        track = self.tracks[slot]
-        track.plots.append(plot.copy())
-        track.plot_ids.append(plot_id)
-        track.states.append(state)
-        self.last_state[slot] = state[1:4]
-        self.last_plot[slot] = plot[1:4]
-        self.weight[slot] = min(self.weight[slot] + params.weight_step, params.weight_confirmed)
+    def associate(self, slot: int, row: int, position: np.ndarray) -> None:
+        """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight."""
+        self.tracks[slot].rows.append(row)
+        self.position[slot] = position
+        self.last_plot[slot] = self.plots.position[row]
+        self.weight[slot] = self.management.associated(self.weight[slot])
         self.plot_count[slot] += 1
-        self._schedule(slot, plot[0] + params.silence_s)
+        self._schedule(slot, self.plots.time[row] + self.management.silence_s)
 
-    def manage(self, now: float, params: TrackerParams) -> list[Track]:
-        """Lower the weight of silent tracks and delete those lowered at or below the candidate
-        weight (see the module docstring). Returns the deleted tracks."""
+    def holds(self, slot: int, track_id: int) -> bool:
+        """Whether `slot` still holds track `track_id` (not deleted, not reused)."""
+        track = self.tracks[slot]
+        return track is not None and track.track_id == track_id
+
+    def manage(self, now: float) -> list[Track]:
+        """Lower the weight of the tracks silent until `now`, deleting those the management rule
+        deletes. Returns the deleted tracks."""
         removed = []
         while self._due and self._due[0][0] <= now:
             due, slot, generation = heapq.heappop(self._due)
             if generation != self._generation[slot]:
                 continue
-            lowered_from = self.weight[slot]
-            if abs(lowered_from - params.weight_candidate) < EPSILON or lowered_from <= params.weight_start + EPSILON:
+            weight = self.management.lowered(self.weight[slot])
+            if weight is None:
                 removed.append(self._remove(slot))
                 continue
-            self.weight[slot] = lowered_from - params.weight_step
-            self._schedule(slot, due + params.silence_s)
+            self.weight[slot] = weight
+            self._schedule(slot, due + self.management.silence_s)
         return removed
 
     def _remove(self, slot: int) -> Track:
@@ -125,14 +127,6 @@ class LiveTracks:
         self._free.append(slot)
         self._generation[slot] += 1
         self.alive[slot] = False
-        self.last_state[slot] = np.inf
+        self.position[slot] = np.inf
         self.last_plot[slot] = np.inf
         return track
-
-
-def status(weight: float, params: TrackerParams) -> str:
-    if weight >= params.weight_confirmed - EPSILON:
-        return "confirmed"
-    if weight >= params.weight_candidate - EPSILON:
-        return "candidate"
-    return "tentative"

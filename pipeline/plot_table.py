@@ -1,0 +1,163 @@
+"""One plot table for every recording: simulated Parquet, a user's Parquet, or ASTERIX.
+
+Every plot carries its sensor. A recording is plots (`radar_id`, time, slant range, azimuth,
+altitude; optionally `scenario_id` and, from the simulator, `target_id`) and a radar
+description (one row per radar: `radar_id`, site latitude, longitude and height, optionally its
+`scan_period_s`). Each plot is placed in ECEF from its own measurements and its own radar's site
+(thesis eqs 4.1-4.6, `geodesy.plot_to_ecef`), and gets its converted-measurement covariance from
+its own radar's errors (`baselines.measurement_covariance`), so plots of several radars can be
+tracked together. The radars' error figures (`sigma_*`) and, where the description has no scan
+period, the rotation come from params' `radar` section.
+
+Plots of a radar the description lacks stop the reading with an error naming the radar id.
+Plots out of time order within a scenario are sorted (stable) and counted in a warning: a
+recording merged from several files is often slightly out of order, and the tracker needs time
+order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from datetime import date
+from functools import cached_property
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import asterix_io, baselines, geodesy, io
+from pipeline.params import Radar
+
+log = logging.getLogger("pipeline")
+
+PLOT_INPUT_SCHEMA = io.schema(
+    ("plot_id", pa.int64()),
+    ("radar_id", pa.int32()),
+    ("time_unix_s", pa.float64()),
+    ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()),
+    ("altitude_m", pa.float64()),
+    ("scenario_id", pa.int32(), True),
+    ("target_id", pa.int32(), True),
+)
+OPTIONAL_PLOT_COLUMNS = ("scenario_id", "target_id")
+RADAR_INPUT_SCHEMA = io.schema(
+    ("radar_id", pa.int32()),
+    ("latitude_deg", pa.float64()),
+    ("longitude_deg", pa.float64()),
+    ("height_m", pa.float64()),
+    ("scan_period_s", pa.float64(), True),
+)
+NO_SCENARIO = -1  # scenario id of plots that have none (ASTERIX, or a Parquet file without the column)
+NO_TARGET = -1    # target id of a false plot, or of every plot when the truth is unknown
+
+
+@dataclass(frozen=True)
+class Plots:
+    """N plots of one recording (or one scenario of it), each with its sensor.
+
+    Arrays are indexed by plot (the plot's row): `plot_id` (N,) int64, `radar_id` (N,) int32,
+    `scenario_id` (N,) int32 (NO_SCENARIO where unknown), `time` (N,) Unix seconds, `position`
+    (N, 3) ECEF metres, `range_m` (N,) the measured slant range to the plot's radar, `covariance`
+    (N, 3, 3) m^2 the converted-measurement covariance of the position, `target_id` (N,) int32 the
+    true target (NO_TARGET for false plots, or when the truth is unknown: `has_truth` False).
+    `radars` maps each radar id to its description."""
+
+    plot_id: np.ndarray
+    radar_id: np.ndarray
+    scenario_id: np.ndarray
+    time: np.ndarray
+    position: np.ndarray
+    range_m: np.ndarray
+    covariance: np.ndarray
+    target_id: np.ndarray
+    has_truth: bool
+    radars: Mapping[int, Radar]
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    @cached_property
+    def features(self) -> np.ndarray:
+        """Rows [t, x, y, z, r] (N, 5) as the networks read plots: time, ECEF position, measured range."""
+        return np.column_stack([self.time, self.position, self.range_m])
+
+    def take(self, rows: np.ndarray) -> "Plots":
+        """The plots at `rows` (indices or a boolean mask), in that order."""
+        return Plots(self.plot_id[rows], self.radar_id[rows], self.scenario_id[rows], self.time[rows],
+                     self.position[rows], self.range_m[rows], self.covariance[rows], self.target_id[rows],
+                     self.has_truth, self.radars)
+
+    def scenarios(self) -> Iterator[tuple[int, "Plots"]]:
+        """Each scenario's plots (in scenario id order), each tracked on its own."""
+        for scenario_id in np.unique(self.scenario_id):
+            yield int(scenario_id), self.take(np.flatnonzero(self.scenario_id == scenario_id))
+
+
+def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
+    """Each described radar (RADAR_INPUT_SCHEMA rows) as params' `radar` at that site, with the
+    row's scan period where it gives one."""
+    out = {}
+    for row in radar_table.to_pylist():
+        period = row.get("scan_period_s")
+        out[int(row["radar_id"])] = dataclasses.replace(
+            radar, latitude_deg=row["latitude_deg"], longitude_deg=row["longitude_deg"], height_m=row["height_m"],
+            rotation_rpm=60.0 / period if period else radar.rotation_rpm)
+    return out
+
+
+def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plots:
+    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id.
+
+    Raises io.InputError naming `source` and the radar id when a plot's radar is not described."""
+    radar_ids = plots.column("radar_id").to_numpy()
+    unknown = sorted(set(np.unique(radar_ids).tolist()) - set(radars))
+    if unknown:
+        raise io.InputError(f"{source}: plots from radar id {unknown[0]} ({len(unknown)} unknown in all), which "
+                            f"the radar description does not list (it has {sorted(radars)})")
+    scenario_ids = plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
+    times = plots.column("time_unix_s").to_numpy()
+    order = np.lexsort((times, scenario_ids))
+    out_of_order = _count_out_of_order(times, scenario_ids)
+    if out_of_order:
+        log.warning("%s: %d plots out of time order; sorted by time", source, out_of_order)
+    table = plots.take(order)
+    radar_ids, range_m = radar_ids[order], table.column("range_m").to_numpy()
+    azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
+    position, covariance = np.empty((len(order), 3)), np.empty((len(order), 3, 3))
+    for radar_id in np.unique(radar_ids):
+        rows = radar_ids == radar_id
+        radar = radars[int(radar_id)]
+        position[rows] = geodesy.plot_to_ecef(range_m[rows], azimuth[rows], altitude[rows], radar)
+        covariance[rows] = baselines.measurement_covariance(position[rows], radar)
+    target = table.column("target_id")
+    return Plots(table.column("plot_id").to_numpy(), radar_ids, scenario_ids[order], times[order], position, range_m,
+                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars))
+
+
+def _count_out_of_order(times: np.ndarray, scenario_ids: np.ndarray) -> int:
+    """Plots earlier than the plot before them in the same scenario."""
+    same = scenario_ids[1:] == scenario_ids[:-1]
+    return int(((np.diff(times) < 0) & same).sum())
+
+
+def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plots:
+    """Plots from Parquet (the schema `simulate` writes, or a user's with PLOT_INPUT_SCHEMA's
+    columns) and their radar description (RADAR_INPUT_SCHEMA). Errors name the file and column."""
+    plots = io.read_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
+    radars = io.read_parquet(radar_path, RADAR_INPUT_SCHEMA, optional=("scan_period_s",))
+    return plot_table(plots, sensors(radars, radar), str(plots_path))
+
+
+def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar) -> Plots:
+    """Plots of ASTERIX CAT048 files with CAT034 north markers (the radars' sites, I034/120, and
+    scan periods, I034/041), given in time order; `first_date` is the UTC date of the first record."""
+    plots, radars = asterix_io.decode(paths, first_date)
+    for name in OPTIONAL_PLOT_COLUMNS:
+        plots = plots.append_column(name, pa.nulls(plots.num_rows, pa.int32()))
+    return plot_table(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA),
+                      sensors(radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar),
+                      ", ".join(str(p) for p in paths))

@@ -1,0 +1,115 @@
+"""Role: the assigner (Stone Soup's data associator): which plot joins which candidate track.
+
+The loop cuts the plots into batches that are associated together (`batches`), scores each
+plot's candidate tracks (pre-filter and gates: `Candidates`) against the tracks alive at the
+batch's first plot, and asks the assigner for a choice per plot (`assign`): the position of
+the chosen candidate in the plot's `Candidates`, or None when the plot starts a track. Plots
+are then updated in time order; a plot whose chosen track was deleted (by management, before
+the plot's time) in the meantime starts a track too.
+
+- `NearestPerPlot`: each plot alone; the candidate with the lowest normalised error wins.
+- `GlobalNearestPerScan`: each antenna scan of each radar at once (the rotation periods counted
+  from the radar's first plot, within which each target is seen once); the assignment of plots
+  to tracks with the least summed normalised error (global nearest neighbour, scipy's
+  `linear_sum_assignment`), each track taking at most one plot. A run of plots from one radar
+  within one of its scans is one batch, so with several radars interleaved the batches are the
+  runs between radar changes.
+- `TrueAssociation` (the oracle): each plot joins the candidate track started by a plot of the
+  same target (the plot table's `target_id`); a false plot joins none. The errors play no part.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from pipeline import io
+from pipeline.plot_table import NO_TARGET, Plots
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.tracks import LiveTracks
+
+UNASSIGNABLE = 1e9  # stands for an infinite cost in the assignment; such pairs are dropped after it
+
+
+class Candidates(NamedTuple):
+    """The K tracks one plot may join: their slots (K,) in increasing order, normalised errors
+    (K,) (inf outside the gate), whether each was scored by the method's gate rather than the
+    young-track radius (K,), and the method's gate's prediction of those (None if it made none),
+    in their order."""
+
+    slots: np.ndarray
+    errors: np.ndarray
+    mature: np.ndarray
+    prediction: Prediction | None
+
+
+class Assigner(Protocol):
+    def batches(self, plots: Plots) -> np.ndarray:
+        """Boundaries (B + 1,) of the B runs of plot rows that are associated together."""
+
+    def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
+        """For each plot of `rows` (with its `candidates`), the chosen candidate or None."""
+
+
+def _nearest(candidates: Candidates) -> int | None:
+    if not len(candidates.slots):
+        return None
+    best = int(np.argmin(candidates.errors))
+    return best if np.isfinite(candidates.errors[best]) else None
+
+
+class NearestPerPlot:
+    """Each plot alone, lowest normalised error wins (the thesis's rule)."""
+
+    def batches(self, plots: Plots) -> np.ndarray:
+        return np.arange(len(plots) + 1)
+
+    def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
+        return [_nearest(c) for c in candidates]
+
+
+class GlobalNearestPerScan:
+    """Global nearest neighbour over each antenna scan of each radar."""
+
+    def batches(self, plots: Plots) -> np.ndarray:
+        if not len(plots):
+            return np.zeros(1, dtype=np.int64)
+        first = {radar_id: plots.time[np.argmax(plots.radar_id == radar_id)] for radar_id in np.unique(plots.radar_id)}
+        origin = np.array([first[r] for r in plots.radar_id.tolist()])
+        period = np.array([plots.radars[r].scan_period_s for r in plots.radar_id.tolist()])
+        scans = np.floor((plots.time - origin) / period).astype(np.int64)
+        change = (np.diff(scans) != 0) | (np.diff(plots.radar_id) != 0)
+        return np.concatenate([[0], np.flatnonzero(change) + 1, [len(plots)]])
+
+    def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
+        choices: list[int | None] = [None] * len(candidates)
+        slots = np.unique(np.concatenate([c.slots for c in candidates]))
+        if not len(slots):
+            return choices
+        cost = np.full((len(candidates), len(slots)), np.inf)
+        for plot, c in enumerate(candidates):
+            cost[plot, np.searchsorted(slots, c.slots)] = c.errors
+        finite = np.isfinite(cost)
+        for plot, column in zip(*linear_sum_assignment(np.where(finite, cost, UNASSIGNABLE))):
+            if finite[plot, column]:
+                choices[plot] = int(np.searchsorted(candidates[plot].slots, slots[column]))
+        return choices
+
+
+class TrueAssociation:
+    """The oracle: each plot joins the candidate track of its own target."""
+
+    def batches(self, plots: Plots) -> np.ndarray:
+        if not plots.has_truth:
+            raise io.InputError("true association needs each plot's target_id, which these plots lack")
+        return np.arange(len(plots) + 1)
+
+    def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
+        target = tracks.plots.target_id
+        choices = []
+        for row, c in zip(rows, candidates):
+            own = [n for n, slot in enumerate(c.slots.tolist()) if target[tracks.tracks[slot].rows[0]] == target[row]]
+            choices.append(own[0] if own and target[row] != NO_TARGET else None)
+        return choices

@@ -1,0 +1,49 @@
+"""Role: the state estimator (Stone Soup's predictor and updater in one).
+
+An estimator keeps what it needs per live track, by slot of `LiveTracks`, and offers three
+calls. Units: seconds (Unix), ECEF metres, m^2 for covariances.
+
+- `start(tracks, slot)`: a track has just started at its first plot (`tracks.tracks[slot].rows[0]`).
+- `predict(tracks, slots, time)`: where the tracks at `slots` (K,) are expected at `time`, all
+  in one batch, as a `Prediction`. The tracks are left unchanged. The loop calls it once per
+  plot for the candidate tracks the gate scores, and hands the same prediction to the gate and
+  to the update.
+- `update(tracks, slot, row, prediction, index)`: the track at `slot` takes plot `row` of
+  `tracks.plots`; `prediction` is the one made for it at the plot's time (row `index` of it) or
+  None when none was made (the young-track radius gate predicts nothing), then the estimator
+  predicts itself if it needs to. Returns the track's new position (3,) and, if the estimator
+  gives one (`gives_covariance`), its covariance (3, 3), else None. The plot is not yet in the
+  track's rows.
+
+A new estimator is one module with a class offering these, and one registry entry
+(`pipeline.tracker.registry`); README "Architecture" has the worked example.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from pipeline.tracker.tracks import LiveTracks
+
+
+class Prediction(NamedTuple):
+    """K tracks at one time: `positions` (K, 3) ECEF m, their covariances (K, 3, 3) m^2 or None
+    when the estimator gives none, and `state`, the estimator's own predicted state, whatever it
+    is, indexable by track (row k is track k's): its update resumes from it."""
+
+    positions: np.ndarray
+    covariances: np.ndarray | None
+    state: Any = None
+
+
+class Estimator(Protocol):
+    gives_covariance: bool
+
+    def start(self, tracks: LiveTracks, slot: int) -> None: ...
+
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction: ...
+
+    def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
+               ) -> tuple[np.ndarray, np.ndarray | None]: ...

@@ -1,0 +1,77 @@
+"""Role: track management, when a track starts, is confirmed and is deleted (Stone Soup's
+initiator and deleter; thesis 4.4).
+
+A rule works on one number per track, its weight, and one clock per track: a track with no
+association and no weight change for `silence_s` seconds is lowered (`lowered`), which may
+delete it. `pipeline.tracker.tracks.LiveTracks` keeps the weights and the clocks and asks the
+rule; the loop never reads a weight itself.
+
+The default rule is the thesis's (`ThesisWeights`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from pipeline.params import TrackerParams
+
+EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this tolerance
+
+
+class TrackManagement(Protocol):
+    """Weights of a track over its life: `start` for a new one, `associated(w)` after an
+    association, `lowered(w)` after a silence of `silence_s` seconds (None: delete the track);
+    `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)` names one."""
+
+    silence_s: float
+    start: float
+
+    def associated(self, weight: float) -> float: ...
+
+    def lowered(self, weight: float) -> float | None: ...
+
+    def confirmed(self, weights: np.ndarray) -> np.ndarray: ...
+
+    def status(self, weight: float) -> str: ...
+
+
+@dataclass(frozen=True)
+class ThesisWeights:
+    """The thesis's weights (`tracker.weight_*`): a track starts at `start` (0.4), is a candidate at
+    `candidate` (0.8) and confirmed at `confirmed_weight` (1.0); each association adds `step`
+    (0.2, capped at the confirmed weight); a silence of `silence_s` (12 s) takes `step` off. A
+    track lowered while at the candidate weight is deleted (thesis). The thesis does not say what
+    happens to a track lowered at or below the start weight: here it is deleted too, so clutter
+    tracks die after one silence period."""
+
+    start: float
+    candidate: float
+    confirmed_weight: float
+    step: float
+    silence_s: float
+
+    @classmethod
+    def from_params(cls, params: TrackerParams) -> "ThesisWeights":
+        return cls(params.weight_start, params.weight_candidate, params.weight_confirmed, params.weight_step,
+                   params.silence_s)
+
+    def associated(self, weight: float) -> float:
+        return min(weight + self.step, self.confirmed_weight)
+
+    def lowered(self, weight: float) -> float | None:
+        if abs(weight - self.candidate) < EPSILON or weight <= self.start + EPSILON:
+            return None
+        return weight - self.step
+
+    def confirmed(self, weights: np.ndarray) -> np.ndarray:
+        return np.asarray(weights) >= self.confirmed_weight - EPSILON
+
+    def status(self, weight: float) -> str:
+        if self.confirmed(weight):
+            return "confirmed"
+        if weight >= self.candidate - EPSILON:
+            return "candidate"
+        return "tentative"

@@ -1,0 +1,92 @@
+"""The networks' state estimator: the predictor and filter networks (thesis 4.6), an `Estimator`.
+
+Every call takes a batch (all candidate tracks of a plot, or all MIA samples) and runs one
+forward pass. Inputs are built from the tracks' histories as the training windows were:
+
+- predictor: the last (up to) 5 states [t, dt, x, y, z, r], dt = time to the next state
+  and, for the last state, to the time being predicted. A track with fewer states is
+  padded by repeating its first state (dt = 0) in front, as the thesis does.
+- filter: the last 10 plots [t, x, y, z, r] (r the plot's measured range to its radar); the
+  last row of its output is the new state.
+
+The networks read and write a range r beside the position, so each track keeps its past
+network states [t, x, y, z, r] in its `memory` (a track's first state is its first plot); the
+track itself shows the loop only the position. The networks give no covariance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.model_eval import output_scaler
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.models import Models
+from pipeline.tracker.tracks import LiveTracks
+
+
+class NetworkEstimator:
+    """Predictor and filter networks with their scalers."""
+
+    gives_covariance = False
+
+    def __init__(self, models: Models) -> None:
+        self.predictor, self.filter = models.predictor, models.filter
+        self._run_predictor, self._run_filter = models.runnable["predictor"], models.runnable["filter"]
+        self.inputs = self.predictor.config.input_steps
+        self.filter_plots = self.filter.config.input_steps
+        self._predictor_out = output_scaler(self.predictor.scaler)
+        self._filter_out = output_scaler(self.filter.scaler)
+
+    def start(self, tracks: LiveTracks, slot: int) -> None:
+        track = tracks.tracks[slot]
+        track.memory = [tracks.plots.features[track.rows[0]]]
+
+    def state_windows(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """Predictor input windows (K x 5 x 6, unscaled) of the tracks at `slots` predicting to
+        `time`, and the number of padded states of each (K,)."""
+        windows = np.empty((len(slots), self.inputs, 6))
+        padded = np.empty(len(slots), dtype=np.int64)
+        for n, slot in enumerate(slots):
+            states = np.asarray(tracks.tracks[slot].memory[-self.inputs:])
+            padded[n] = self.inputs - len(states)
+            window = windows[n]
+            window[:padded[n], 0] = states[0, 0]
+            window[:padded[n], 2:] = states[0, 1:]
+            window[:padded[n], 1] = 0.0
+            window[padded[n]:, 0] = states[:, 0]
+            window[padded[n]:, 2:] = states[:, 1:]
+            window[padded[n]:, 1] = np.diff(np.append(states[:, 0], time))
+        return windows, padded
+
+    def predict_windows(self, windows: np.ndarray) -> np.ndarray:
+        """Predicted [t, x, y, z, r] at the end of each state window (K x 5)."""
+        scaler = self.predictor.scaler
+        origin = scaler.origin(windows)
+        outputs = self._run_predictor(scaler.transform(windows, origin)).astype(float)
+        return self._predictor_out.inverse(outputs, origin)[:, -1]
+
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
+        """The predictor's [t, x, y, z, r] of each track at `time` (the Prediction's state, K x 5)."""
+        rows = self.predict_windows(self.state_windows(tracks, slots, time)[0])
+        return Prediction(rows[:, 1:4], None, rows)
+
+    def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
+               ) -> tuple[np.ndarray, None]:
+        """The state after associating plot `row`. With `filter_plots` plots, the new one included,
+        the filter network denoises the last ones; before that the state is the mean of the
+        predicted state and the plot (position and range), the predictor running here when the
+        gate made no prediction (the young-track radius)."""
+        track, plot = tracks.tracks[slot], tracks.plots.features[row]
+        if len(track.rows) + 1 < self.filter_plots:
+            if prediction is None:
+                prediction, index = self.predict(tracks, np.array([slot]), plot[0]), 0
+            state = 0.5 * (prediction.state[index] + plot)
+            state[0] = plot[0]
+        else:
+            window = tracks.plots.features[[*track.rows[-(self.filter_plots - 1):], row]][None]
+            origin = self.filter.scaler.origin(window)
+            outputs = self._run_filter(self.filter.scaler.transform(window, origin)).astype(float)
+            state = self._filter_out.inverse(outputs, origin)[0, -1]
+            state[0] = plot[0]
+        track.memory.append(state)
+        return state[1:4], None

@@ -1,0 +1,72 @@
+"""The gates that run networks (thesis 4.5), `Gate`s of `pipeline.tracker.gate`:
+
+- `MonteCarloGate` (`mia`): 100 samples around the track's last state, all predicted; the
+  gate is centred on their mean with radius K * sigma, sigma the RMS distance of the samples'
+  predictions from their mean, K = 20 - padded states (10 if none is padded). The mean is the
+  prediction the update resumes from.
+- `AutoencoderGate` (`ae`): the track's last 4 plots and the candidate through the
+  autoencoder; the error is the sum of absolute differences, within the calibrated threshold.
+
+Neither uses the loop's shared prediction: MIA predicts its own samples, AE predicts nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.inference import BatchNetwork
+from pipeline.model_store import LoadedModel
+from pipeline.params import TrackerParams
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.gate import Scores, within
+from pipeline.tracker.network_estimator import NetworkEstimator
+from pipeline.tracker.tracks import LiveTracks
+
+
+class MonteCarloGate:
+    """MIA: a variable window from the spread of predictions of perturbed last states."""
+
+    uses_prediction = False
+
+    def __init__(self, estimator: NetworkEstimator, params: TrackerParams, rng: np.random.Generator) -> None:
+        self.estimator, self.params, self.rng = estimator, params, rng
+
+    def _samples(self, count: int) -> np.ndarray:
+        """Offsets normal with sigma = radius / 3, pulled back into the ball of that radius."""
+        offsets = self.rng.normal(0.0, self.params.mia_ball_radius_m / 3.0, size=(count, 3))
+        norms = np.linalg.norm(offsets, axis=1, keepdims=True)
+        return offsets * np.minimum(1.0, self.params.mia_ball_radius_m / np.maximum(norms, 1e-12))
+
+    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
+        count = self.params.mia_samples
+        windows, padded = self.estimator.state_windows(tracks, slots, tracks.plots.time[row])
+        perturbed = np.repeat(windows, count, axis=0)
+        perturbed[:, -1, 2:5] += self._samples(len(perturbed))
+        predictions = self.estimator.predict_windows(perturbed).reshape(len(slots), count, -1)
+        mean = predictions.mean(axis=1)
+        sigma = np.sqrt(((predictions[:, :, 1:4] - mean[:, None, 1:4]) ** 2).sum(axis=2).mean(axis=1))
+        k = np.where(padded > 0, self.params.mia_k_padded_base - padded, self.params.mia_k_no_padding)
+        radius = np.maximum(k * sigma, 1e-9)
+        distance = np.linalg.norm(mean[:, 1:4] - tracks.plots.position[row], axis=1)
+        return Scores(within(distance, radius), Prediction(mean[:, 1:4], None, mean))
+
+
+class AutoencoderGate:
+    """AE: accept a plot if the autoencoder reconstructs the track's last plots plus it well enough."""
+
+    uses_prediction = False
+
+    def __init__(self, autoencoder: LoadedModel, runnable: BatchNetwork) -> None:
+        if "threshold" not in autoencoder.extras:
+            raise ValueError("the autoencoder model has no calibrated threshold; retrain it with train_autoencoder")
+        self.model, self.run, self.threshold = autoencoder, runnable, float(autoencoder.extras["threshold"])
+        self.history = autoencoder.config.input_steps - 1
+
+    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
+        features = tracks.plots.features
+        windows = np.stack([features[[*tracks.tracks[slot].rows[-self.history:], row]] for slot in slots])
+        origin = self.model.scaler.origin(windows)
+        scaled = self.model.scaler.transform(windows, origin)
+        reconstructed = self.run(scaled)
+        error = np.abs(reconstructed - scaled).sum(axis=(1, 2))
+        return Scores(np.where(error <= self.threshold, error / self.threshold, np.inf), None)

@@ -1,0 +1,180 @@
+"""The one list of tracking methods: each name, its composition of roles, and what it needs.
+
+A method is a name (what params' `evaluate.runs`, `track --method` and the reports use), a
+label for the tables, a family (`neural`, `classical`, or `reference` for the oracle, which is
+given the true association and is run only as an evaluation reference), the pieces it loads
+(`pipeline.tracker.loading`: the `predictor`, `filter` and `autoencoder` networks, the tuned
+classical filters `kalman_tuned`), and `compose`, which builds its tracker
+(`pipeline.tracker.run.Composition`) from the loaded pieces, the tracker params, the window
+(metres: the VIA window, the young-track radius of every method) and a seed (MIA's sampling).
+
+Params validation, the evaluate and compare stages, the tables and `track` read the names from
+here; nothing else lists methods. Adding a method is one entry here (and the modules of its
+parts); README "Architecture" has a worked example.
+
+The implementations are imported inside the compose functions, so naming or validating a method
+loads no network library.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+if TYPE_CHECKING:
+    from pipeline.params import TrackerParams
+    from pipeline.tracker.assigner import Assigner
+    from pipeline.tracker.estimator import Estimator
+    from pipeline.tracker.gate import Gate
+    from pipeline.tracker.models import Models
+    from pipeline.tracker.network_estimator import NetworkEstimator
+    from pipeline.tracker.run import Composition
+
+NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
+NETWORKS = ("predictor", "filter")  # the estimator of every neural method
+TUNED_FILTERS = "kalman_tuned"
+GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
+NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
+
+Seed = int | list[int]
+
+
+class UnknownMethod(ValueError):
+    """A method name that is not registered; the message lists the registered ones."""
+
+
+@dataclass(frozen=True)
+class Method:
+    """One tracking method. `filter_kind`: the tuned classical filter it runs (cv, ca, imm), if any.
+    `relative_cost`: rough tracking time per plot relative to `via`, measured on the default test
+    split; only the order in which the evaluate stage hands out work depends on it."""
+
+    name: str
+    label: str
+    family: str
+    needs: tuple[str, ...]
+    compose: Callable[["Models", "TrackerParams", float, Seed], "Composition"]
+    relative_cost: float
+    filter_kind: str | None = None
+
+
+def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: int, window_m: float,
+                 params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
+                 young_gate: "Gate | None" = None) -> "Composition":
+    """A composition with the defaults every method shares: the young-track radius gate, the
+    pre-filter distance of params, nearest neighbour per plot and the thesis's weights."""
+    from pipeline.tracker.assigner import NearestPerPlot
+    from pipeline.tracker.gate import RadiusGate
+    from pipeline.tracker.management import ThesisWeights
+    from pipeline.tracker.run import Composition
+    return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
+                       params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
+                       ThesisWeights.from_params(params))
+
+
+def _network_estimator(models: "Models") -> "NetworkEstimator":
+    from pipeline.tracker.network_estimator import NetworkEstimator
+    return NetworkEstimator(models)
+
+
+def _radius(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    from pipeline.tracker.gate import RadiusGate
+    return _composition("radius", _network_estimator(models), RadiusGate(window_m), NOT_MATURE, window_m, params)
+
+
+def _via(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    from pipeline.tracker.gate import WindowGate
+    return _composition("via", _network_estimator(models), WindowGate(window_m), params.young_track_plots, window_m,
+                        params)
+
+
+def _mia(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    import numpy as np
+
+    from pipeline.tracker.network_gates import MonteCarloGate
+    estimator = _network_estimator(models)
+    return _composition("mia", estimator, MonteCarloGate(estimator, params, np.random.default_rng(seed)),
+                        params.young_track_plots, window_m, params)
+
+
+def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    from pipeline.tracker.network_gates import AutoencoderGate
+    return _composition("ae", _network_estimator(models),
+                        AutoencoderGate(models.autoencoder, models.runnable["autoencoder"]),
+                        params.young_track_plots_ae, window_m, params)
+
+
+def _classical(name: str, kind: str, global_nearest: bool):
+    """A tuned filter of `kind` with the chi-square gate, nearest neighbour per plot or per scan."""
+    def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+        from pipeline.tracker.assigner import GlobalNearestPerScan
+        from pipeline.tracker.gate import ChiSquareGate
+        from pipeline.tracker.kalman import KalmanEstimator
+        return _composition(name, KalmanEstimator(models.filters[kind]), ChiSquareGate(params.kalman_gate_probability),
+                            params.young_track_plots, window_m, params,
+                            assigner=GlobalNearestPerScan() if global_nearest else None)
+    return compose
+
+
+def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    """The tuned IMM given the true association: every live track a candidate, none gated."""
+    from pipeline.tracker.assigner import TrueAssociation
+    from pipeline.tracker.gate import AcceptAll
+    from pipeline.tracker.kalman import KalmanEstimator
+    return _composition("oracle", KalmanEstimator(models.filters["imm"]), AcceptAll(), 1, window_m, params,
+                        assigner=TrueAssociation(), prefilter_m=float("inf"))
+
+
+def _classical_methods() -> list[Method]:
+    methods = []
+    for global_nearest in (False, True):
+        for base, kind, label, cost in (("kalman_cv", "cv", "Kalman CV", 1.5), ("kalman_ca", "ca", "Kalman CA", 1.5),
+                                        ("imm", "imm", "IMM", 2.0)):
+            name = base + GLOBAL_SUFFIX if global_nearest else base
+            methods.append(Method(name, label + " + GNN" if global_nearest else label, CLASSICAL, (TUNED_FILTERS,),
+                                  _classical(name, kind, global_nearest), cost * 1.1 if global_nearest else cost,
+                                  kind))
+    return methods
+
+
+METHODS: dict[str, Method] = {method.name: method for method in [
+    Method("radius", "radius", NEURAL, NETWORKS, _radius, 0.7),
+    Method("via", "VIA", NEURAL, NETWORKS, _via, 1.0),
+    Method("mia", "MIA", NEURAL, NETWORKS, _mia, 2.2),
+    Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
+    *_classical_methods(),
+    Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
+]}
+TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
+REFERENCES = tuple(name for name, method in METHODS.items() if method.family == REFERENCE)
+
+
+def method(name: str) -> Method:
+    """The registered method `name`; UnknownMethod names the registered ones."""
+    found = METHODS.get(name)
+    if found is None:
+        raise UnknownMethod(f"tracking method {name!r}: must be one of {list(METHODS)}")
+    return found
+
+
+def compose(name: str, models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    """The tracker of method `name` for one run (its estimator keeps per-track state: one per run)."""
+    return method(name).compose(models, params, window_m, seed)
+
+
+def method_of_run(run_name: str) -> Method | None:
+    """The method of an evaluation run's name (`<method>_<window>`, or `<reference>_reference`),
+    None for a run that is not a registered method's (the raw-plots reference)."""
+    name = run_name.removesuffix("_reference") if run_name.endswith("_reference") else run_name.rsplit("_", 1)[0]
+    return METHODS.get(name)
+
+
+def family_of_run(run_name: str) -> str:
+    """The family of an evaluation run: its method's, or `reference` for every reference run."""
+    method = method_of_run(run_name)
+    return REFERENCE if run_name.endswith("_reference") or method is None else method.family
+
+
+def needs(names: list[str]) -> set[str]:
+    """The pieces the methods `names` need together."""
+    return {piece for name in names for piece in method(name).needs}

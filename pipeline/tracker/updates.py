@@ -1,0 +1,83 @@
+"""The track-update table: what a tracker run gives, one row per track update.
+
+A track's start counts as its first update (association `start`). Columns, each an array of
+the table's length U:
+
+| column | shape, unit | meaning |
+|---|---|---|
+| `track_id` | (U,) int64 | unique within the run |
+| `time_unix_s` | (U,) s | the plot's time |
+| `plot_id` | (U,) int64 | the plot's id |
+| `radar_id` | (U,) int32 | the plot's radar |
+| `x_ecef_m`, `y_ecef_m`, `z_ecef_m` | (U,) m | the track's position after the update (a start's is its plot's) |
+| `weight` | (U,) | the track's weight after the update |
+| `association` | (U,) str | `start`, or the label of the gate that won (`radius` for young tracks, else the method) |
+| `association_error` | (U,) | the normalised error of the association, NaN for a start |
+| `position_covariance` | (U, 3, 3) m^2 | of the position; a start's is its plot's measurement covariance; NaN for estimators that give none |
+
+An *association to a confirmed track* (`confirmed_associations`) is an update that is not a start
+and after which the track's weight is confirmed by the track management rule; the metrics, OSPA,
+the pictures and the `track` command's `status` all read it from here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.plot_table import Plots
+from pipeline.tracker.management import TrackManagement
+
+START = "start"
+COLUMNS = ("track_id", "time_unix_s", "plot_id", "radar_id", "x_ecef_m", "y_ecef_m", "z_ecef_m", "weight",
+           "association", "association_error", "position_covariance")
+UNKNOWN_COVARIANCE = np.full((3, 3), np.nan)
+
+
+class Updates:
+    """The update table of one run, collected row by row (`add`) and given as arrays (`table`);
+    covariances are kept only when the estimator gives them (`with_covariance`)."""
+
+    def __init__(self, with_covariance: bool) -> None:
+        self.with_covariance = with_covariance
+        self._track_id: list[int] = []
+        self._row: list[int] = []
+        self._position: list[np.ndarray] = []
+        self._weight: list[float] = []
+        self._association: list[str] = []
+        self._error: list[float] = []
+        self._covariance: list[np.ndarray] = []
+
+    def add(self, track_id: int, row: int, position: np.ndarray, weight: float, association: str, error: float,
+            covariance: np.ndarray | None) -> None:
+        """One update of track `track_id` with plot `row`: its position (3,) after it, weight,
+        association label and normalised error, and the position's covariance (3, 3)."""
+        self._track_id.append(track_id)
+        self._row.append(row)
+        self._position.append(position)
+        self._weight.append(weight)
+        self._association.append(association)
+        self._error.append(error)
+        if self.with_covariance:
+            self._covariance.append(covariance)
+
+    def table(self, plots: Plots) -> dict[str, np.ndarray]:
+        """The columns (see the module docstring) for the rows added, `plots` being the plots tracked."""
+        rows = np.asarray(self._row, dtype=np.int64)
+        position = np.asarray(self._position, dtype=float).reshape(-1, 3)
+        covariance = (np.asarray(self._covariance, dtype=float).reshape(-1, 3, 3) if self.with_covariance
+                      else np.broadcast_to(UNKNOWN_COVARIANCE, (len(rows), 3, 3)).copy())
+        return {"track_id": np.asarray(self._track_id, dtype=np.int64), "time_unix_s": plots.time[rows],
+                "plot_id": plots.plot_id[rows], "radar_id": plots.radar_id[rows], "x_ecef_m": position[:, 0],
+                "y_ecef_m": position[:, 1], "z_ecef_m": position[:, 2], "weight": np.asarray(self._weight, dtype=float),
+                "association": np.asarray(self._association, dtype=str), "association_error": np.asarray(self._error, dtype=float),
+                "position_covariance": covariance}
+
+
+def confirmed_associations(updates: dict[str, np.ndarray], management: TrackManagement) -> np.ndarray:
+    """Which updates (U,) are associations to a confirmed track."""
+    return (updates["association"] != START) & management.confirmed(updates["weight"])
+
+
+def positions(updates: dict[str, np.ndarray]) -> np.ndarray:
+    """The updates' positions (U, 3), ECEF metres."""
+    return np.column_stack([updates["x_ecef_m"], updates["y_ecef_m"], updates["z_ecef_m"]])

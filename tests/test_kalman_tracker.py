@@ -1,0 +1,142 @@
+"""The tracker's classical estimator and gate (`pipeline.tracker.kalman` on the one Kalman core,
+`pipeline.batch_filters`) against filterpy's objects (`pipeline.classical_filters`), step by step.
+
+A turning flight near the radar with 50 m noise and one missed scan, plots placed in ECEF with their
+converted-measurement covariance. No networks are needed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import classical_filters, geodesy
+from pipeline.tracker.gate import ChiSquareGate
+from pipeline.tracker.kalman import KalmanEstimator
+from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.tracks import LiveTracks
+from tests import tracker_fixtures as tf
+
+COAST_AT = 9  # the track is predicted at this plot but does not take it (a coast), then takes the next
+
+
+@pytest.fixture(scope="module")
+def params():
+    return tf.make_params()
+
+
+def noisy_turning_flight(params, rng: np.random.Generator, scans: int = 16) -> np.ndarray:
+    """[t, x, y, z, r] plots of a 220 m/s flight turning at 2 deg/s, 50 m noise, scan 7 missed."""
+    elapsed = np.delete(np.arange(scans) * tf.SCAN_S, 7)
+    heading = np.radians(2.0) * elapsed
+    enu = np.column_stack([80e3 + 220.0 / np.radians(2.0) * (1.0 - np.cos(heading)),
+                           -30e3 + 220.0 / np.radians(2.0) * np.sin(heading), np.full(len(elapsed), 9000.0)])
+    return tf.enu_to_features(tf.T0 + elapsed, enu + rng.normal(0.0, 50.0, enu.shape), params.radar)
+
+
+def moved_east(features: np.ndarray, params, metres: float) -> np.ndarray:
+    """The same plots `metres` east (in the radar's local frame)."""
+    moved = features.copy()
+    moved[:, 1:4] += metres * geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg)[0]
+    return moved
+
+
+@pytest.mark.parametrize("kind", classical_filters.KINDS)
+def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_gated(params, kind):
+    """One track of the tracker's estimator beside filterpy's filter, started at the same first plot:
+    at every later plot the prediction the gate scores with (combined position and covariance; the
+    IMM's own predicted density), the chi-square gate's normalised error (d^2 / quantile, d^2 computed
+    from filterpy's prediction with np.linalg.solve), the position and covariance after the update and
+    the IMM's predicted mode probabilities all equal filterpy's to rounding. A plot 5 km off is gated
+    out (infinite error) and changes nothing; at plot COAST_AT the track coasts (predicted, gated, not
+    updated) and its next update spans two scans."""
+    settings = tf.untuned_filters(params)[kind]
+    measured = np.ix_(settings.measured, settings.measured)
+    flight = noisy_turning_flight(params, np.random.default_rng(21))
+    far = moved_east(flight, params, 5000.0)
+    plots = tf.plots_of(np.concatenate([flight, far]), np.arange(2 * len(flight)), params.radar)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
+    estimator = KalmanEstimator(settings)
+    gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+    slot = live.start(0)
+    estimator.start(live, slot)
+    slots = np.array([slot])
+    reference = classical_filters.start_filter(settings, plots.position[0], plots.covariance[0])
+    last = plots.time[0]
+    gated_out = 0
+    for row in range(1, len(flight)):
+        prediction = estimator.predict(live, slots, plots.time[row])
+        state, covariance = classical_filters.predicted_gaussian(reference, settings, plots.time[row] - last)
+        np.testing.assert_allclose(prediction.positions[0], state[settings.measured], rtol=1e-12, atol=1e-6)
+        np.testing.assert_allclose(prediction.covariances[0], covariance[measured], rtol=1e-9, atol=1e-6)
+        for plot in (row, row + len(flight)):
+            innovation = plots.position[plot] - state[settings.measured]
+            distance = innovation @ np.linalg.solve(covariance[measured] + plots.covariance[plot], innovation)
+            error = gate(live, slots, plot, prediction).errors[0]
+            if distance < gate.threshold:
+                assert error == pytest.approx(distance / gate.threshold, rel=1e-9)
+            else:
+                assert np.isinf(error)
+                gated_out += plot >= len(flight)
+        if row == COAST_AT:
+            continue
+        position, position_covariance = estimator.update(live, slot, row, prediction, 0)
+        live.associate(slot, row, position)
+        classical_filters.advance(reference, settings, plots.time[row] - last)
+        classical_filters.update(reference, plots.position[row], plots.covariance[row])
+        last = plots.time[row]
+        x, P = classical_filters.posterior(reference)
+        np.testing.assert_allclose(position, x[settings.measured], rtol=1e-12, atol=1e-6)
+        np.testing.assert_allclose(position_covariance, P[measured], rtol=1e-9, atol=1e-6)
+        if kind == "imm":
+            np.testing.assert_allclose(estimator.mu[slot], reference.cbar, rtol=1e-9, atol=1e-12)
+    assert gated_out >= len(flight) - 3  # the 5 km plots, bar the first few while the velocity is unknown
+
+
+def test_update_without_a_prediction_predicts_itself(params):
+    """A young track's update (the radius gate made no prediction) gives what predicting first gives."""
+    settings = tf.untuned_filters(params)["imm"]
+    flight = noisy_turning_flight(params, np.random.default_rng(3))[:2]
+    results = []
+    for given in (False, True):
+        live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
+                          ThesisWeights.from_params(params.tracker))
+        estimator = KalmanEstimator(settings)
+        slot = live.start(0)
+        estimator.start(live, slot)
+        prediction = estimator.predict(live, np.array([slot]), flight[1, 0]) if given else None
+        results.append(estimator.update(live, slot, 1, prediction, 0))
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])
+
+
+def test_gate_scores_stacked_tracks_as_each_alone(params):
+    """All candidate tracks of a plot are predicted and gated in one batch: the same errors and
+    predictions as each track alone, for tracks of different ages and times (the youngest, last
+    updated a minute before the plot in a turn, rejects it)."""
+    settings = tf.untuned_filters(params)["imm"]
+    rng = np.random.default_rng(4)
+    flights = [noisy_turning_flight(params, rng)[:count] for count in (3, 6, 11)]
+    plot = noisy_turning_flight(params, rng)[11]
+    features = np.concatenate([*flights, plot[None]])
+    live = LiveTracks(tf.plots_of(features, np.arange(len(features)), params.radar),
+                      ThesisWeights.from_params(params.tracker))
+    estimator = KalmanEstimator(settings)
+    gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+    first = 0
+    for flight in flights:
+        slot = live.start(first)
+        estimator.start(live, slot)
+        for row in range(first + 1, first + len(flight)):
+            position, _ = estimator.update(live, slot, row, None, 0)
+            live.associate(slot, row, position)
+        first += len(flight)
+    slots = np.flatnonzero(live.alive)
+    row = len(features) - 1
+    together = gate(live, slots, row, estimator.predict(live, slots, features[row, 0]))
+    alone = [gate(live, slots[n:n + 1], row, estimator.predict(live, slots[n:n + 1], features[row, 0]))
+             for n in range(len(slots))]
+    np.testing.assert_allclose(together.errors, [scores.errors[0] for scores in alone], rtol=1e-12)
+    np.testing.assert_allclose(together.prediction.positions,
+                               np.vstack([scores.prediction.positions for scores in alone]), rtol=1e-12)
+    assert np.isinf(together.errors[0]) and np.isfinite(together.errors[1:]).all()

@@ -1,0 +1,156 @@
+"""The tracking loop (`pipeline.tracker.run`) with stub components, no trained networks: start,
+confirmation and deletion by the thesis's weights, one shared prediction per plot, global nearest
+neighbour over a scan, and the oracle's true association.
+
+Plots lie on a line through a point near the radar (ECEF x axis offsets), so distances are plain
+to read; the stub estimator takes each plot as the track's new position and predicts that a track
+stays where it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import io
+from pipeline.plot_table import NO_TARGET
+from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, TrueAssociation
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
+from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.run import Composition, track
+from tests import tracker_fixtures as tf
+
+ORIGIN = np.array([2.9e6, 1.3e6, 5.5e6])  # ECEF metres, near the default radar
+RULE = ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2, silence_s=12.0)
+WINDOW_M = 2000.0
+
+
+class StayingEstimator:
+    """A stub estimator: a track is predicted where its last update put it, and an update puts it on
+    the plot. It records every prediction it makes and every prediction an update is given."""
+
+    gives_covariance = False
+
+    def __init__(self) -> None:
+        self.made: list[Prediction] = []
+        self.given: list[Prediction | None] = []
+
+    def start(self, tracks, slot: int) -> None:
+        pass
+
+    def predict(self, tracks, slots: np.ndarray, time: float) -> Prediction:
+        self.made.append(Prediction(tracks.position[slots].copy(), None, slots.copy()))
+        return self.made[-1]
+
+    def update(self, tracks, slot: int, row: int, prediction: Prediction | None, index: int):
+        self.given.append(prediction)
+        return tracks.plots.position[row], None
+
+
+class RecordingGate(WindowGate):
+    """VIA's window gate, recording the predictions it is given."""
+
+    def __init__(self, window_m: float) -> None:
+        super().__init__(window_m)
+        object.__setattr__(self, "seen", [])
+
+    def __call__(self, tracks, slots, row, prediction):
+        self.seen.append(prediction)
+        return super().__call__(tracks, slots, row, prediction)
+
+
+def composition(estimator=None, gate=None, assigner=None, mature_from: int = 2, prefilter_m: float = 20000.0
+                ) -> Composition:
+    return Composition("stub", estimator or StayingEstimator(), gate or WindowGate(WINDOW_M), RadiusGate(WINDOW_M),
+                       "radius", mature_from, prefilter_m, assigner or NearestPerPlot(), RULE)
+
+
+def plots(times: list[float], offsets_m: list[float], targets: list[int] | None = None):
+    """Plots at `times` (s after T0), `offsets_m` metres along ECEF x from ORIGIN."""
+    positions = ORIGIN + np.outer(offsets_m, [1.0, 0.0, 0.0])
+    features = np.column_stack([tf.T0 + np.asarray(times, float), positions, np.full(len(times), 1e5)])
+    radar = tf.make_params().radar
+    return tf.plots_of(features, np.arange(len(times)), radar, None if targets is None else np.asarray(targets))
+
+
+def test_a_track_starts_is_confirmed_at_its_fourth_plot_and_labels_its_gates():
+    """Six plots 500 m apart, 6 s apart: one track; weights 0.4, 0.6, 0.8, 1.0, 1.0, 1.0; statuses
+    tentative, tentative, candidate, confirmed...; the second plot joins by the young-track radius, the
+    others by the method's gate; a start's error is NaN, the others distance / window."""
+    updates = track(plots([0, 6, 12, 18, 24, 30], [0, 500, 1000, 1500, 2000, 2500]), composition())
+    assert tf.tracks_of(updates) == {0: [0, 1, 2, 3, 4, 5]}
+    np.testing.assert_allclose(updates["weight"], [0.4, 0.6, 0.8, 1.0, 1.0, 1.0])
+    assert [RULE.status(w) for w in updates["weight"]] == ["tentative", "tentative", "candidate", "confirmed",
+                                                            "confirmed", "confirmed"]
+    assert updates["association"].tolist() == ["start", "radius", "stub", "stub", "stub", "stub"]
+    assert np.isnan(updates["association_error"][0])
+    np.testing.assert_allclose(updates["association_error"][1:], 500.0 / WINDOW_M)
+    np.testing.assert_allclose(updates["x_ecef_m"] - ORIGIN[0], [0, 500, 1000, 1500, 2000, 2500], atol=1e-6)
+    assert np.isnan(updates["position_covariance"]).all()
+
+
+@pytest.mark.parametrize("gap_s, same_track", [(18.0, True), (23.9, True), (24.1, False), (40.0, False)])
+def test_a_silent_confirmed_track_is_lowered_once_then_deleted(gap_s, same_track):
+    """A confirmed track silent for up to 24 s (lowered once, to 0.8) takes the next plot (back to 1.0);
+    silent for longer it was deleted and the plot starts a new track at 0.4."""
+    updates = track(plots([0, 6, 12, 18, 18 + gap_s], [0, 100, 200, 300, 400]), composition())
+    assert updates["track_id"].tolist() == ([0] * 5 if same_track else [0] * 4 + [1])
+    assert updates["weight"][-1] == pytest.approx(1.0 if same_track else 0.4)
+
+
+def test_plots_out_of_every_gate_start_tracks_that_die_after_one_silence():
+    """Plots 5 km apart never join a track; each starts one, deleted 12 s later (a plot at the same
+    place 13 s on starts a new one)."""
+    updates = track(plots([0, 1, 2, 14], [0, 5000, 10000, 0]), composition())
+    assert updates["track_id"].tolist() == [0, 1, 2, 3]
+    assert (updates["association"] == "start").all()
+
+
+def test_each_prediction_is_made_once_and_handed_to_gate_and_update():
+    """For each plot with mature candidates the estimator predicts once; the gate scores with that
+    prediction and the winner's update resumes from the very same object; young tracks get none."""
+    estimator, gate = StayingEstimator(), RecordingGate(WINDOW_M)
+    track(plots([0, 6, 12, 18], [0, 500, 1000, 1500]), composition(estimator, gate))
+    assert len(estimator.made) == 2 and len(gate.seen) == 2
+    assert all(seen is made for seen, made in zip(gate.seen, estimator.made))
+    assert estimator.given[0] is None                      # plot 1: the young track, radius gate
+    assert [given is made for given, made in zip(estimator.given[1:], estimator.made)] == [True, True]
+
+
+def test_global_nearest_neighbour_assigns_a_scan_jointly_where_nearest_per_plot_is_greedy():
+    """Scan 0 (one radar rotation, 6 s): plots at 0 and 1000 m start tracks A and B (no track is alive
+    at the scan's start). Scan 1: plots at 600 m and 1500 m. Jointly the best is 600 -> A (error 0.3) and
+    1500 -> B (0.25), 0.55 in all, against 0.95 for 600 -> B (0.2, the nearest) and 1500 -> A (0.75).
+    Nearest per plot instead gives both scan-0 plots one track (1000 m is inside its window)."""
+    recording = plots([0.0, 0.5, 6.0, 6.5], [0.0, 1000.0, 600.0, 1500.0])
+    joint = track(recording, composition(assigner=GlobalNearestPerScan(), mature_from=1))
+    assert tf.tracks_of(joint) == {0: [0, 2], 1: [1, 3]}
+    np.testing.assert_allclose(joint["association_error"][2:], [0.3, 0.25])
+    greedy = track(recording, composition(mature_from=1))
+    assert tf.tracks_of(greedy) != tf.tracks_of(joint)
+
+
+def test_global_nearest_neighbour_scans_follow_each_radars_rotation():
+    """The batches are the runs of plots of one radar within one of its scans (6 s, from its first plot)."""
+    recording = plots([0.0, 2.0, 5.9, 6.1, 11.0, 12.5], [0, 1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(GlobalNearestPerScan().batches(recording), [0, 3, 5, 6])
+
+
+def test_the_oracle_joins_each_plot_to_its_own_targets_track():
+    """Two targets crossing (their plots swap sides) among false plots, with no gating and an infinite
+    pre-filter: each target's plots form its own track, whatever the distances; each false plot starts
+    a track of its own."""
+    times = [0, 1, 2, 6, 7, 8, 12, 13, 14]
+    offsets = [0, 3000, 50, 1000, 2000, 1020, 2000, 1000, 40]
+    targets = [1, 2, NO_TARGET, 1, 2, NO_TARGET, 1, 2, NO_TARGET]
+    oracle = Composition("oracle", StayingEstimator(), AcceptAll(), RadiusGate(WINDOW_M), "radius", 1, float("inf"),
+                         TrueAssociation(), RULE)
+    updates = track(plots(times, offsets, targets), oracle)
+    assert sorted(tf.tracks_of(updates).values()) == [[0, 3, 6], [1, 4, 7], [2], [5], [8]]
+    assert set(updates["association"][updates["association"] != "start"]) == {"oracle"}
+
+
+def test_the_oracle_needs_the_truth():
+    with pytest.raises(io.InputError, match="target_id"):
+        track(plots([0, 6], [0, 100]), composition(assigner=TrueAssociation()))
