@@ -36,7 +36,7 @@ from pipeline.plot_table import NO_TARGET, Plots
 from pipeline.stages import progress_logger
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
-from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.management import TrackManagement
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
 from pipeline.tracker.updates import COLUMNS
@@ -117,13 +117,22 @@ def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
     """Every run of params, and the references, as name -> track(scenario)."""
     def method_run(run: EvaluationRun) -> callable:
         return lambda scenario: track(scenario.plots, registry.compose(
-            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id]))
+            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id],
+            run.management))
 
     def reference_run(method: str) -> callable:
         return lambda scenario: reference_updates(scenario, method, models, params)
 
     return {**{run.name: method_run(run) for run in params.evaluate.runs},
             **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
+
+
+def run_management(params: Params) -> dict[str, TrackManagement]:
+    """The track management rule each run (and reference) is tracked and scored under, by name."""
+    default = registry.management(params.tracker.management, params.tracker)
+    return {**{run.name: registry.management(run.management or params.tracker.management, params.tracker)
+               for run in params.evaluate.runs},
+            **{f"{method}_reference": default for method in params.evaluate.references}}
 
 
 @dataclass
@@ -161,7 +170,7 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
 def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
     """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
     params, scenario = evaluation.params, evaluation.scenarios[index]
-    management = ThesisWeights.from_params(params.tracker)
+    management = run_management(params)[name]
     start = time.perf_counter()
     updates = evaluation.runs[name](scenario)
     seconds = time.perf_counter() - start
@@ -273,8 +282,9 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
     metrics = {"runs": results, "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
     table = markdown_table({name: values for name, values in results.items() if not name.endswith("_reference")})
+    example_rule = run_management(params)[params.evaluate.example_run]
     pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples[scenario.scenario_id], params,
-                                                              params.evaluate.example_run)
+                                                              params.evaluate.example_run, example_rule)
                 for scenario in scenarios[:params.evaluate.example_scenarios]}
 
     ospa_png = figures.ospa_distribution(per_scan, params.evaluate.ospa_cutoff_m)

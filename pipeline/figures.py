@@ -15,7 +15,7 @@ import pymap3d  # noqa: E402
 from pipeline import geodesy  # noqa: E402
 from pipeline.data_summary import target_plot_errors_m, target_plot_intervals_s  # noqa: E402
 from pipeline.params import STRATEGIES, Params  # noqa: E402
-from pipeline.tracker.management import ThesisWeights  # noqa: E402
+from pipeline.tracker.management import TrackManagement  # noqa: E402
 from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE, family_of_run  # noqa: E402
 from pipeline.tracker.updates import confirmed_associations, positions  # noqa: E402
 
@@ -138,8 +138,10 @@ def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str)
     return _png(figure)
 
 
-def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str) -> bytes:
-    """One scenario: the true route, target and false plots near it, and the confirmed tracks' states."""
+def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str,
+                     management: TrackManagement) -> bytes:
+    """One scenario: the true route, target and false plots near it, and the confirmed tracks' states
+    (confirmed by the run's track management rule `management`)."""
     radar = params.radar
 
     def local_km(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +160,7 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
     axis.scatter(plot_e[shown & ~target], plot_n[shown & ~target], s=2, color="0.7", label="false plots")
     axis.scatter(plot_e[target], plot_n[target], s=4, color="black", label="target plots")
     axis.plot(truth_e, truth_n, color="tab:green", lw=1.0, label="truth")
-    confirmed = confirmed_associations(updates, ThesisWeights.from_params(params.tracker))
+    confirmed = confirmed_associations(updates, management)
     states = positions(updates)
     for number, track_id in enumerate(np.unique(updates["track_id"][confirmed])):
         rows = confirmed & (updates["track_id"] == track_id)

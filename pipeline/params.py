@@ -20,6 +20,7 @@ import yaml
 from pipeline.tracker import registry
 
 STRATEGIES = ("constant_jerk", "random_turns")
+MAX_CONFIRM_N = 52  # an M-of-N track's last confirm_n opportunities are the bits of its weight (a double's 53)
 
 
 class ParamError(ValueError):
@@ -181,16 +182,27 @@ class TrackerParams:
     seed: int
     inference: str
     kalman_gate_probability: float
+    management: str         # the track management rule of every run that names none (registry.MANAGEMENT)
+    confirm_m: int          # m_of_n: confirmed at this many associations ...
+    confirm_n: int          # ... within the last this many opportunities (scans)
+    delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
+    opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
 
 
 @dataclass(frozen=True)
 class EvaluationRun:
+    """One evaluation run: a method, its window (m) and, if the run names one, its track
+    management rule (None: the tracker's, `tracker.management`)."""
+
     method: str
     window_m: float
+    management: str | None = None
 
     @property
     def name(self) -> str:
-        return f"{self.method}_{self.window_m:.0f}"
+        """`<method>_<window>`, and `_<rule>` when the run names its rule (`imm_4000_m_of_n`)."""
+        base = f"{self.method}_{self.window_m:.0f}"
+        return base if self.management is None else f"{base}_{self.management}"
 
 
 @dataclass(frozen=True)
@@ -550,7 +562,7 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
 REFERENCES = ("plots", *registry.REFERENCES)  # raw target plots; the registry's references (the oracle)
 
 
-def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
+def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> TrackerParams:
     p = "tracker"
     tracker = TrackerParams(
         weight_start=_positive(tree, "weight_start", p),
@@ -569,7 +581,16 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
         seed=_integer(tree, "seed", p),
         inference=_text(tree, "inference", p),
         kalman_gate_probability=_number(tree, "kalman_gate_probability", p, 0.0, 1.0, low_open=True),
+        management=_management(tree, "management", p),
+        confirm_m=_integer(tree, "confirm_m", p, 1),
+        confirm_n=_integer(tree, "confirm_n", p, 1),
+        delete_after_s=_positive(tree, "delete_after_s", p),
+        opportunity_s=radar.scan_period_s,
     )
+    if tracker.confirm_m > tracker.confirm_n:
+        raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")
+    if tracker.confirm_n > MAX_CONFIRM_N:
+        raise ParamError(f"{p}.confirm_n = {tracker.confirm_n}: must be at most {MAX_CONFIRM_N}")
     if tracker.kalman_gate_probability >= 1.0:
         raise ParamError(f"{p}.kalman_gate_probability = {tracker.kalman_gate_probability}: must be below 1")
     if tracker.inference not in ("onnx", "torch"):
@@ -581,6 +602,14 @@ def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
         raise ParamError(f"{p}.filter_plots = {tracker.filter_plots}: the filter network reads "
                          f"windows.filter_length = {windows.filter_length} plots")
     return tracker
+
+
+def _management(tree: Mapping[str, Any], key: str, p: str) -> str:
+    """A track management rule's name, one of the registry's."""
+    rule = _get(tree, key, p)
+    if rule not in registry.MANAGEMENT:
+        raise ParamError(f"{p}.{key} = {rule!r}: must be one of {registry.MANAGEMENT}")
+    return rule
 
 
 def _split_name(tree: Mapping[str, Any], p: str, splits: tuple[Split, ...]) -> str:
@@ -602,10 +631,11 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
         method = _get(run, "method", f"{p}.runs[{index}]")
         if method not in registry.TRACKERS:
             raise ParamError(f"{p}.runs[{index}].method = {method!r}: must be one of {registry.TRACKERS}")
-        runs.append(EvaluationRun(method, _positive(run, "window_m", f"{p}.runs[{index}]")))
+        rule = _management(run, "management", f"{p}.runs[{index}]") if "management" in run else None
+        runs.append(EvaluationRun(method, _positive(run, "window_m", f"{p}.runs[{index}]"), rule))
     names = [run.name for run in runs]
     if len(set(names)) != len(names):
-        raise ParamError(f"{p}.runs: {names} repeats a method and window")
+        raise ParamError(f"{p}.runs: {names} repeats a method, window and management rule")
     example_run = _text(tree, "example_run", p)
     if example_run not in names:
         raise ParamError(f"{p}.example_run = {example_run!r}: not one of the runs {names}")
@@ -664,7 +694,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         example_routes=_integer(report, "example_routes", "report", 1),
         windows=windows,
         training=_training(_get(tree, "training", "params"), windows),
-        tracker=_tracker(_get(tree, "tracker", "params"), windows),
+        tracker=_tracker(_get(tree, "tracker", "params"), windows, radar),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),

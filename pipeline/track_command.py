@@ -27,7 +27,6 @@ from pipeline.params import Params
 from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
-from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.run import track
 from pipeline.tracker.updates import positions
 
@@ -57,7 +56,7 @@ def track_recording(plots: Plots, method: str, window_m: float, params: Params, 
     """Track every scenario of a recording with `method`; one row per track update (TRACK_SCHEMA),
     `range_m` the range from the plot's radar to the track's position."""
     models = load_models(models_dir, params, [method])
-    management = ThesisWeights.from_params(params.tracker)
+    management = registry.management(params.tracker.management, params.tracker)
     sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in plots.radars.items()}
     parts = []
     for scenario_id, scenario in plots.scenarios():

@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from pipeline.params import STRATEGIES, ParamError, load_params, parse_params
+from pipeline.tracker import registry
 from tests.project import run_pipeline, write_params
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
@@ -49,6 +50,12 @@ def test_default_params_load():
      ["training.predictor.early_stopping_min_improvement", "-0.01"]),
     ("training.autoencoder.lr_decay_factor", 0.0, ["training.autoencoder.lr_decay_factor", "0.0"]),
     ("compute.workers", 0, ["compute.workers", "0"]),
+    # track management
+    ("tracker.management", "mofn", ["tracker.management", "'mofn'", "m_of_n"]),
+    ("tracker.confirm_m", 6, ["tracker.confirm_m = 6", "confirm_n = 5"]),
+    ("tracker.confirm_n", 0, ["tracker.confirm_n", "0"]),
+    ("tracker.confirm_n", 53, ["tracker.confirm_n = 53", "at most 52"]),
+    ("tracker.delete_after_s", 0.0, ["tracker.delete_after_s", "0.0"]),
 ])
 def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
     """An invalid value raises ParamError whose message names the key and the value."""
@@ -144,3 +151,19 @@ def test_unknown_key_stops_the_command_with_exit_2(params_tree, tmp_path):
     assert result.returncode == 2
     assert f"{path}: radar.sigma_rnage_m = 400.0: unknown key (did you mean sigma_range_m?)" in result.stderr
     assert not (tmp_path / "routes").exists()
+
+
+def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(params_tree):
+    """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
+    naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
+    that does not exist is named with its run."""
+    default_names = [run.name for run in parse_params(params_tree).evaluate.runs]
+    params_tree["evaluate"]["runs"].append({"method": "imm", "window_m": 4000.0, "management": "m_of_n"})
+    runs = parse_params(params_tree).evaluate.runs
+    assert [run.name for run in runs] == default_names + ["imm_4000_m_of_n"]
+    assert runs[-1].management == "m_of_n" and all(run.management is None for run in runs[:-1])
+    assert registry.method_of_run("imm_4000_m_of_n").name == "imm"
+    assert registry.method_of_run("imm_gnn_4000_thesis").name == "imm_gnn"
+    params_tree["evaluate"]["runs"][-1]["management"] = "weights"
+    with pytest.raises(ParamError, match=rf"evaluate.runs\[{len(runs) - 1}\].management = 'weights': must be one of"):
+        parse_params(params_tree)

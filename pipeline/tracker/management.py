@@ -2,11 +2,13 @@
 initiator and deleter; thesis 4.4).
 
 A rule works on one number per track, its weight, and one clock per track: a track with no
-association and no weight change for `silence_s` seconds is lowered (`lowered`), which may
-delete it. `pipeline.tracker.tracks.LiveTracks` keeps the weights and the clocks and asks the
+association and no weight change for `silence(weight)` seconds is lowered (`lowered`), which
+may delete it. `pipeline.tracker.tracks.LiveTracks` keeps the weights and the clocks and asks the
 rule; the loop never reads a weight itself.
 
-The default rule is the thesis's (`ThesisWeights`).
+The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
+alternative (M-of-N confirmation, time-out deletion). `pipeline.tracker.registry` names both
+(`tracker.management`, or a run's `management`).
 """
 
 from __future__ import annotations
@@ -23,11 +25,13 @@ EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this toler
 
 class TrackManagement(Protocol):
     """Weights of a track over its life: `start` for a new one, `associated(w)` after an
-    association, `lowered(w)` after a silence of `silence_s` seconds (None: delete the track);
-    `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)` names one."""
+    association, `lowered(w)` after a silence of `silence(w)` seconds at weight w (None: delete
+    the track); `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)`
+    names one."""
 
-    silence_s: float
     start: float
+
+    def silence(self, weight: float) -> float: ...
 
     def associated(self, weight: float) -> float: ...
 
@@ -60,6 +64,9 @@ class ThesisWeights:
 
     def associated(self, weight: float) -> float:
         return min(weight + self.step, self.confirmed_weight)
+
+    def silence(self, weight: float) -> float:
+        return self.silence_s
 
     def lowered(self, weight: float) -> float | None:
         if abs(weight - self.candidate) < EPSILON or weight <= self.start + EPSILON:

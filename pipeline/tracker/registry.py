@@ -12,6 +12,9 @@ Params validation, the evaluate and compare stages, the tables and `track` read 
 here; nothing else lists methods. Adding a method is one entry here (and the modules of its
 parts); README "Architecture" has a worked example.
 
+Track management is composed the same way: `MANAGEMENT` names the rules (`thesis`, the default
+of every method, and `m_of_n`), and `compose(..., management_rule=...)` runs any method under either.
+
 The implementations are imported inside the compose functions, so naming or validating a method
 loads no network library.
 """
@@ -28,6 +31,7 @@ if TYPE_CHECKING:
     from pipeline.tracker.gate import Gate
     from pipeline.tracker.models import Models
     from pipeline.tracker.network_estimator import NetworkEstimator
+    from pipeline.tracker.management import TrackManagement
     from pipeline.tracker.run import Composition
 
 NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
@@ -37,6 +41,8 @@ GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neigh
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
+THESIS_RULE, M_OF_N_RULE = "thesis", "m_of_n"
+MANAGEMENT = (THESIS_RULE, M_OF_N_RULE)  # track management rules (`tracker.management`, a run's `management`)
 
 
 class UnknownMethod(ValueError):
@@ -62,14 +68,13 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
                  params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
                  young_gate: "Gate | None" = None) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
-    pre-filter distance of params, nearest neighbour per plot and the thesis's weights."""
+    pre-filter distance of params, nearest neighbour per plot and the tracker's management rule."""
     from pipeline.tracker.assigner import NearestPerPlot
     from pipeline.tracker.gate import RadiusGate
-    from pipeline.tracker.management import ThesisWeights
     from pipeline.tracker.run import Composition
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
                        params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
-                       ThesisWeights.from_params(params))
+                       management(params.management, params))
 
 
 def _network_estimator(models: "Models") -> "NetworkEstimator":
@@ -157,16 +162,37 @@ def method(name: str) -> Method:
     return found
 
 
-def compose(name: str, models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-    """The tracker of method `name` for one run (its estimator keeps per-track state: one per run)."""
-    return method(name).compose(models, params, window_m, seed)
+def management(rule: str, params: "TrackerParams") -> "TrackManagement":
+    """The track management rule named `rule` (one of `MANAGEMENT`) with the tracker params'
+    settings: `thesis`, the thesis's weights; `m_of_n`, M-of-N confirmation and a time-out."""
+    from pipeline.tracker.m_of_n import MOfN
+    from pipeline.tracker.management import ThesisWeights
+    rules = {THESIS_RULE: ThesisWeights.from_params, M_OF_N_RULE: MOfN.from_params}
+    if rule not in rules:
+        raise ValueError(f"track management {rule!r}: must be one of {list(rules)}")
+    return rules[rule](params)
+
+
+def compose(name: str, models: "Models", params: "TrackerParams", window_m: float, seed: Seed,
+            management_rule: str | None = None) -> "Composition":
+    """The tracker of method `name` for one run (its estimator keeps per-track state: one per run),
+    under the track management rule `management_rule` (None: `params.management`)."""
+    from dataclasses import replace
+    composition = method(name).compose(models, params, window_m, seed)
+    if management_rule is None:
+        return composition
+    return replace(composition, management=management(management_rule, params))
 
 
 def method_of_run(run_name: str) -> Method | None:
-    """The method of an evaluation run's name (`<method>_<window>`, or `<reference>_reference`),
-    None for a run that is not a registered method's (the raw-plots reference)."""
-    name = run_name.removesuffix("_reference") if run_name.endswith("_reference") else run_name.rsplit("_", 1)[0]
-    return METHODS.get(name)
+    """The method of an evaluation run's name (`<method>_<window>`, `<method>_<window>_<rule>`, or
+    `<reference>_reference`), None for a run that is not a registered method's (the raw-plots
+    reference)."""
+    if run_name.endswith("_reference"):
+        return METHODS.get(run_name.removesuffix("_reference"))
+    for rule in MANAGEMENT:
+        run_name = run_name.removesuffix(f"_{rule}")
+    return METHODS.get(run_name.rsplit("_", 1)[0])
 
 
 def family_of_run(run_name: str) -> str:

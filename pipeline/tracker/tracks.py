@@ -84,7 +84,7 @@ class LiveTracks:
         self.weight[slot] = self.management.start
         self.plot_count[slot] = 1
         self.alive[slot] = True
-        self._schedule(slot, self.plots.time[row] + self.management.silence_s)
+        self._schedule(slot, self.plots.time[row] + self.management.silence(self.weight[slot]))
         return slot
 
     def _schedule(self, slot: int, due: float) -> None:
@@ -98,7 +98,7 @@ class LiveTracks:
         self.last_plot[slot] = self.plots.position[row]
         self.weight[slot] = self.management.associated(self.weight[slot])
         self.plot_count[slot] += 1
-        self._schedule(slot, self.plots.time[row] + self.management.silence_s)
+        self._schedule(slot, self.plots.time[row] + self.management.silence(self.weight[slot]))
 
     def holds(self, slot: int, track_id: int) -> bool:
         """Whether `slot` still holds track `track_id` (not deleted, not reused)."""
@@ -118,7 +118,7 @@ class LiveTracks:
                 removed.append(self._remove(slot))
                 continue
             self.weight[slot] = weight
-            self._schedule(slot, due + self.management.silence_s)
+            self._schedule(slot, due + self.management.silence(weight))
         return removed
 
     def _remove(self, slot: int) -> Track:

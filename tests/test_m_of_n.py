@@ -1,0 +1,136 @@
+"""The M-of-N track management rule (`pipeline.tracker.m_of_n`) in the tracking loop, with the stub
+parts of `tests/test_tracker_loop.py` (no networks), and a long orbit tracked by the tuned IMM
+under both rules (`tracker.management`).
+
+M = 3, N = 5, one opportunity = one 6 s scan: a tentative track records a miss 9 s after its last
+hit, then every 6 s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pipeline import geodesy
+from pipeline.classical_filters import FilterSettings
+from pipeline.evaluate_stage import run_management
+from pipeline.params import parse_params
+from pipeline.tracker import registry
+from pipeline.tracker.m_of_n import CONFIRMED, MOfN
+from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import track
+from pipeline.tracker.updates import confirmed_associations
+from tests import tracker_fixtures as tf
+from tests.test_tracker_loop import composition, plots
+
+RULE = MOfN(m=3, n=5, opportunity_s=tf.SCAN_S, delete_after_s=20.0)
+# the default run's tuned filters (models/kalman_tuned.json of the committed run, rounded)
+TUNED = {"cv": FilterSettings("cv", (6.773,), 298.8, 10.0, 0.05, 0.9),
+         "ca": FilterSettings("ca", (4.228,), 175.7, 10.0, 0.05, 0.9),
+         "imm": FilterSettings("imm", (0.00666, 13.62), 236.3, 10.0, 0.05, 0.9)}
+
+
+def m_of_n(**parts):
+    """The stub composition of tests/test_tracker_loop.py under RULE."""
+    return dataclasses.replace(composition(**parts), management=RULE)
+
+
+def test_confirmed_at_the_mth_association_within_n_scans_and_not_before():
+    """Hits at scans 0, 1 and 4 (scans 2 and 3 missed): 3 hits within 5 scans, confirmed by the third
+    association, tentative before it."""
+    updates = track(plots([0, 6, 24, 30], [0, 100, 400, 500]), m_of_n())
+    assert tf.tracks_of(updates) == {0: [0, 1, 2, 3]}
+    assert [RULE.status(w) for w in updates["weight"]] == ["tentative", "tentative", "confirmed", "confirmed"]
+    assert updates["weight"][2] == CONFIRMED
+
+
+def test_an_mth_association_outside_the_last_n_scans_does_not_confirm():
+    """Hits at scans 0, 1 and 5 (three misses between): the last 5 scans (1-5) hold 2 hits, the
+    third association leaves the track tentative; a hit at scan 6 leaves scans 2-6 with 2; hits at
+    scans 7 confirm (5, 6, 7)."""
+    updates = track(plots([0, 6, 30, 36, 42], [0, 100, 500, 600, 700]), m_of_n())
+    assert tf.tracks_of(updates) == {0: [0, 1, 2, 3, 4]}
+    assert [RULE.status(w) for w in updates["weight"]] == ["tentative"] * 4 + ["confirmed"]
+
+
+def test_a_tentative_track_with_no_hit_in_its_last_n_scans_is_deleted():
+    """A lone plot's track records misses at 9, 15, 21, 27 and 33 s: at 33 s its last 5 scans hold no
+    hit and it is deleted; a plot at the same place at 32 s still joins it, one at 33 s starts anew."""
+    assert track(plots([0, 32], [0, 100]), m_of_n())["track_id"].tolist() == [0, 0]
+    assert track(plots([0, 33], [0, 100]), m_of_n())["track_id"].tolist() == [0, 1]
+
+
+@pytest.mark.parametrize("silence_s, same_track", [(19.9, True), (20.0, False), (20.1, False)])
+def test_a_confirmed_track_silent_for_delete_after_s_is_deleted_the_boundary_inclusive(silence_s, same_track):
+    """Confirmed at 12 s (hits at 0, 6, 12), then silent: a plot 19.9 s later joins it; a plot
+    exactly delete_after_s = 20 s later (or more) finds it deleted and starts a new track."""
+    updates = track(plots([0, 6, 12, 12 + silence_s], [0, 100, 200, 300]), m_of_n())
+    assert RULE.status(updates["weight"][2]) == "confirmed"
+    assert updates["track_id"].tolist() == ([0] * 4 if same_track else [0, 0, 0, 1])
+
+
+def test_a_confirmed_track_is_not_lowered_before_its_time_out():
+    """Unlike a tentative one, a confirmed track misses scans without losing its confirmation."""
+    updates = track(plots([0, 6, 12, 30], [0, 100, 200, 300]), m_of_n())
+    assert updates["track_id"].tolist() == [0] * 4
+    assert (updates["weight"][2:] == CONFIRMED).all()
+
+
+def orbit_plots(params, minutes: float = 20.0, rate_dps: float = 3.0, speed_mps: float = 150.0, seed: int = 5):
+    """A constant-rate orbit (`rate_dps`, `speed_mps`) 60 km east and 40 km north of the default radar at
+    6000 m, one plot per 6 s scan for `minutes`, no clutter, measured with the radar's errors
+    (radar.sigma_*: range, azimuth, altitude) and placed in ECEF as the plot table places plots
+    (thesis eqs. 4.1-4.6)."""
+    radar = params.radar
+    elapsed = np.arange(0.0, minutes * 60.0, tf.SCAN_S)
+    heading = np.radians(rate_dps) * elapsed
+    radius = speed_mps / np.radians(rate_dps)
+    enu = np.column_stack([60e3 + radius * np.sin(heading), 40e3 + radius * np.cos(heading),
+                           np.full(len(elapsed), 6000.0)])
+    truth = tf.enu_to_features(tf.T0 + elapsed, enu, radar)[:, 1:4]
+    slant, azimuth, altitude = geodesy.true_measurement(truth, radar)
+    rng = np.random.default_rng(seed)
+    slant = slant + rng.normal(0.0, radar.sigma_range_m, len(elapsed))
+    azimuth = azimuth + rng.normal(0.0, radar.sigma_azimuth_deg, len(elapsed))
+    altitude = altitude + rng.normal(0.0, radar.sigma_altitude_m, len(elapsed))
+    features = np.column_stack([tf.T0 + elapsed, geodesy.plot_to_ecef(slant, azimuth, altitude, radar), slant])
+    return tf.plots_of(features, np.arange(len(elapsed)), radar)
+
+
+def confirmed_tracks(method: str, rule_name: str) -> int:
+    """Confirmed tracks of the orbit tracked by `method` (tuned filters, 4 km young-track radius)
+    under the management rule `rule_name`."""
+    params = tf.make_params()
+    composition = registry.compose(method, Models(filters=TUNED), params.tracker, 4000.0, params.tracker.seed,
+                                   rule_name)
+    updates = track(orbit_plots(params), composition)
+    return len(np.unique(updates["track_id"][confirmed_associations(updates, composition.management)]))
+
+
+IMM_SPLITS = ("the tuned IMM splits the orbit under either rule (6 confirmed tracks under m_of_n, 5 under thesis): "
+              "its mode probability swings to the CV model, whose tuned process noise (0.0067 m/s^2) shrinks the "
+              "predicted covariance until the next plot (~700 m off) is gated out; a filter matter, not management")
+
+
+@pytest.mark.parametrize("method", [
+    "kalman_cv", "kalman_ca", pytest.param("imm", marks=pytest.mark.xfail(strict=True, reason=IMM_SPLITS))])
+def test_a_20_minute_orbit_at_3_dps_is_one_confirmed_track_under_m_of_n(method, capsys):
+    """No clutter, 200 plots: under m_of_n (3 of 5, 20 s time-out) the orbit is one confirmed track.
+    The thesis rule's count is printed, not asserted (issue 13 item 4)."""
+    with capsys.disabled():
+        print(f"\norbit, {method}: confirmed tracks under thesis {confirmed_tracks(method, registry.THESIS_RULE)}, "
+              f"under m_of_n {confirmed_tracks(method, registry.M_OF_N_RULE)}")
+    assert confirmed_tracks(method, registry.M_OF_N_RULE) == 1
+
+
+def test_evaluate_scores_each_run_under_its_own_rule():
+    """A run naming m_of_n is tracked and scored under MOfN; the others and the references under the
+    tracker's rule (thesis by default)."""
+    tree = tf.params_tree()
+    tree["evaluate"]["runs"].append({"method": "imm", "window_m": 4000.0, "management": "m_of_n"})
+    rules = run_management(parse_params(tree))
+    assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
+    assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)
