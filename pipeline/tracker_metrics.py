@@ -127,14 +127,15 @@ def markdown_table(results: dict[str, dict]) -> str:
 
     order = list(registry.METHODS)
 
-    def position(name: str) -> tuple[int, float]:
-        method, window = name.rsplit("_", 1)
-        return (order.index(method) if method in order else len(order), float(window))
+    def position(name: str) -> tuple[int, float, str]:
+        method, window, rule = registry.run_parts(name)
+        return (order.index(method) if method in order else len(order), float(window), rule or "")
 
     for name in sorted(results, key=position):
         values = results[name]
-        method, window = name.rsplit("_", 1)
+        method, window, rule = registry.run_parts(name)
         label = f"{registry.METHODS[method].label if method in registry.METHODS else method} {window}"
+        label += f", {rule}" if rule else ""
         lines.append(f"| {label} | ours | {cells(values)} |")
         if name in THESIS:
             lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")

@@ -23,6 +23,7 @@ from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
 from pipeline.tracker.updates import confirmed_associations
+from pipeline.tracker_metrics import markdown_table
 from tests import tracker_fixtures as tf
 from tests.test_tracker_loop import composition, plots
 
@@ -134,3 +135,14 @@ def test_evaluate_scores_each_run_under_its_own_rule():
     rules = run_management(parse_params(tree))
     assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
     assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)
+
+
+def test_the_tracker_table_labels_a_run_by_its_rule_and_keeps_the_others():
+    """tracker_tables.md: `imm_4000_m_of_n` is the row `IMM 4000, m_of_n` right after `IMM 4000`, whose
+    label is unchanged (our rows; the thesis's own rows sit under those it has)."""
+    values = {"ROCA": 0.9}
+    rows = markdown_table({"imm_4000_m_of_n": values, "imm_4000": values, "via_4000": values}).splitlines()[2:]
+    rows = [row for row in rows if "| ours |" in row]
+    assert [row.split(" | ")[0] for row in rows] == ["| VIA 4000", "| IMM 4000", "| IMM 4000, m_of_n"]
+    assert registry.run_parts("imm_gnn_4000_m_of_n") == ("imm_gnn", "4000", "m_of_n")
+    assert registry.run_parts("imm_gnn_4000") == ("imm_gnn", "4000", None)
