@@ -3,7 +3,7 @@
 A tiny test split (two routes per strategy, each scenario cut to its first 15 minutes), tiny
 trained networks (tests/tracker_fixtures.py) and the classical filters at their start values,
 evaluated with one run of each kind (network gates, the young-track radius, classical
-nearest and global nearest neighbour) and both references: once in the stage's process, once
+nearest and global nearest neighbour, one under the m_of_n management rule) and both references: once in the stage's process, once
 over two worker processes. Everything written must be equal byte for byte, except the speed
 of each run (`plots_per_second`), a timing.
 """
@@ -27,7 +27,8 @@ pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.* is deprecated")
 KEPT_S = 900.0  # of each scenario: enough for tracks to confirm, and seconds to evaluate
 RUNS = [{"method": "via", "window_m": 4000.0}, {"method": "mia", "window_m": 4000.0},
         {"method": "ae", "window_m": 5000.0}, {"method": "radius", "window_m": 4000.0},
-        {"method": "kalman_cv", "window_m": 4000.0}, {"method": "imm_gnn", "window_m": 4000.0}]
+        {"method": "kalman_cv", "window_m": 4000.0}, {"method": "imm_gnn", "window_m": 4000.0},
+        {"method": "imm_gnn", "window_m": 4000.0, "management": "m_of_n"}]
 
 
 @pytest.fixture(scope="module")
@@ -87,5 +88,5 @@ def test_one_and_two_workers_write_the_same_reports(inputs, tmp_path, monkeypatc
     assert alone == shared
     # The runs did track: each confirmed tracks on target plots.
     assert set(metrics["runs"]) == {"via_4000", "mia_4000", "ae_5000", "radius_4000", "kalman_cv_4000",
-                                    "imm_gnn_4000", "plots_reference", "oracle_reference"}
+                                    "imm_gnn_4000", "imm_gnn_4000_m_of_n", "plots_reference", "oracle_reference"}
     assert all(run["NOPA"] > 0 for run in metrics["runs"].values())
