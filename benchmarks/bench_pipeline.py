@@ -73,14 +73,14 @@ def main() -> None:
         env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
         env.pop("MLFLOW_TRACKING_URI", None)  # the copy's own mlflow.db, as on a fresh clone
         log = folder / "repro.log"
-        results, total = {}, 0.0
+        results, total = [], 0.0
         for stage in stages:
             command = [sys.executable, "-m", "dvc", "repro", "--single-item", "--force", stage]
             seconds, peak, code = timed(command, copy, env, log)
             if code != 0:
                 raise SystemExit(f"stage {stage} failed (exit {code}); its output:\n{log.read_text()[-4000:]}")
             total += seconds
-            results[stage] = {"seconds": round(seconds, 1), "peak_memory_mib": round(peak)}
+            results.append({"stage": stage, "seconds": round(seconds, 1), "peak_memory_mib": round(peak)})
             print(f"{stage:18s} {seconds:7.1f} s  {peak:6.0f} MiB  (total {total / 60:.1f} min)", flush=True)
         params = yaml.safe_load((copy / "params.yaml").read_text())
         report = {
