@@ -1,7 +1,7 @@
 """Track management by M-of-N confirmation and a time-out deleter (a `TrackManagement` rule).
 
 The usual alternative to the thesis's weights (Blackman & Popoli, "Design and Analysis of
-Modern Tracking Systems", Artech House 1999, sec. 6.2-6.3: sliding-window M/N track
+Modern Tracking Systems", Artech House 1999, track confirmation: sliding-window M/N
 confirmation; deletion after a time without an update, as Stone Soup's `UpdateTimeDeleter`):
 
 - **Opportunity.** One antenna scan (`opportunity_s`, seconds: the params' radar's scan
