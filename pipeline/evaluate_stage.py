@@ -81,11 +81,8 @@ def read_scenarios(params: Params, simulated_dir: Path, routes_dir: Path) -> lis
     """The evaluated split's scenarios, from the simulate and routes stages' files."""
     split = params.evaluate.split
     plots_path = simulated_dir / split / "plots.parquet"
-    table = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)
-    radars = io.read_parquet(simulated_dir / split / "radar.parquet", plot_table.RADAR_INPUT_SCHEMA,
-                             optional=("scan_period_s",))
-    plots = plot_table.plot_table(table.select(plot_table.PLOT_INPUT_SCHEMA.names).cast(plot_table.PLOT_INPUT_SCHEMA),
-                                  plot_table.sensors(radars, params.radar), str(plots_path))
+    table = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)  # the simulated schema: scans, truth
+    plots = plot_table.read_parquet_plots(plots_path, simulated_dir / split / "radar.parquet", params.radar)
     return load_scenarios(plots, dict(zip(table.column("plot_id").to_numpy().tolist(),
                                           table.column("scan").to_numpy().tolist())),
                           io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
