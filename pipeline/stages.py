@@ -7,9 +7,7 @@ previous outputs (or none) rather than a mix of new and old.
 from __future__ import annotations
 
 import logging
-import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pyarrow as pa
@@ -18,21 +16,9 @@ import pyarrow.compute  # noqa: F401  (pa.compute)
 from pipeline import figures, io, materials, routes, simulate, windows
 from pipeline.data_summary import summarise_split
 from pipeline.params import Params
+from pipeline.progress import progress_logger
 
 log = logging.getLogger("pipeline")
-
-
-def progress_logger(label: str, every_s: float = 5.0) -> Callable[[int, int], None]:
-    """A progress callback that logs a line at most every few seconds, and at the end."""
-    last = [0.0]
-
-    def report(done: int, total: int) -> None:
-        now = time.monotonic()
-        if done == total or now - last[0] >= every_s:
-            last[0] = now
-            log.info("%s: %d/%d (%.0f%%)", label, done, total, 100.0 * done / max(total, 1))
-
-    return report
 
 
 def run_routes(params: Params, out_dir: Path) -> None:

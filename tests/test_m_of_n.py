@@ -15,7 +15,7 @@ import pytest
 
 from pipeline import geodesy
 from pipeline.classical_filters import FilterSettings
-from pipeline.evaluate_stage import run_management
+from pipeline.evaluation import run_management
 from pipeline.params import parse_params
 from pipeline.tracker import registry
 from pipeline.tracker.m_of_n import CONFIRMED, MOfN

@@ -1,0 +1,265 @@
+"""Evaluate trackers over scenarios: one unit per (run, scenario), spread over processes.
+
+Each scenario is one radar recording tracked on its own, as in the thesis. The MIA
+sampling draws from a stream seeded by (tracker seed, scenario), so results do not depend
+on the order scenarios are run in.
+
+Besides the thesis's metrics every run gets OSPA (`pipeline.ospa`), ANEES where the tracker
+gives covariances, and its speed in plots per second (tracking time only, one core). Two
+references bound the problem: `plots`, the target's raw plots taken as the estimate with the
+true association, and `oracle`, the tuned IMM given the true association.
+
+The units are all independent, spread over `compute.workers` processes (1: all in this one).
+Units are handed out largest first so no worker is left with a long one at the end, and their
+results are put together by run and scenario, never in the order they finish: the metrics are
+the same byte for byte whatever the number of workers, except the speeds, which are timings.
+The stages `evaluate` (the evaluated split at the radar's site) and `evaluate_sites` (the same
+routes at other sites) both run their scenarios through here.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import pyarrow as pa
+import torch
+
+from pipeline import io, ospa, plot_table, routes, simulate
+from pipeline.params import EvaluationRun, Params
+from pipeline.plot_table import NO_TARGET, Plots
+from pipeline.progress import progress_logger
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import track
+from pipeline.tracker.updates import COLUMNS
+from pipeline.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
+
+log = logging.getLogger("pipeline")
+
+PLOTS_REFERENCE = "plots"     # the target's raw plots with the true association (not a tracker)
+PLOTS_REFERENCE_COST = 0.03   # its relative cost (see registry.Method.relative_cost)
+
+
+@dataclass
+class Scenario:
+    scenario_id: int
+    plots: Plots                  # the scenario's plots, time order
+    is_target: dict[int, bool]    # plot id -> whether the plot is the target's
+    truth: object                 # t -> ECEF positions (a spline over the route)
+    scans: np.ndarray             # each plot's antenna scan
+    coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
+
+
+def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
+                   ) -> list[Scenario]:
+    """The scenarios of a split: its plots (`plot_table`), each plot's scan by plot id, its routes and truth."""
+    scenarios = []
+    route_ids = route_table.column("route_id").to_numpy()
+    truth_scenarios = truth_table.column("scenario_id").to_numpy()
+    truth_scans = truth_table.column("scan").to_numpy()
+    in_coverage = truth_table.column("in_coverage").to_numpy(zero_copy_only=False)
+    for scenario_id, part in plots.scenarios():
+        route = route_table.filter(pa.array(route_ids == scenario_id))
+        trajectory = simulate.trajectory_of({name: route.column(name).to_numpy() for name in simulate.ROUTE_COLUMNS})
+        scenarios.append(Scenario(scenario_id, part, dict(zip(part.plot_id.tolist(),
+                                                                (part.target_id != NO_TARGET).tolist())),
+                                  _clipped(trajectory), np.array([plot_scans[p] for p in part.plot_id.tolist()]),
+                                  np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage])))
+    return scenarios
+
+
+def read_scenarios(params: Params, simulated_dir: Path, routes_dir: Path) -> list[Scenario]:
+    """The evaluated split's scenarios, from the simulate and routes stages' files."""
+    split = params.evaluate.split
+    plots_path = simulated_dir / split / "plots.parquet"
+    table = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)  # the simulated schema: scans, truth
+    plots = plot_table.read_parquet_plots(plots_path, simulated_dir / split / "radar.parquet", params.radar)
+    return load_scenarios(plots, dict(zip(table.column("plot_id").to_numpy().tolist(),
+                                          table.column("scan").to_numpy().tolist())),
+                          io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
+                          io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
+
+
+def _clipped(trajectory: object) -> object:
+    """The route's position at any time, held at its ends outside it."""
+    start, end = trajectory.x[0], trajectory.x[-1]
+    return lambda t: trajectory(np.clip(t, start, end))
+
+
+def reference_updates(scenario: Scenario, method: str, models: Models, params: Params) -> dict[str, np.ndarray]:
+    """The references' updates, from the target's plots only: `plots` takes each plot as the
+    estimate of one always-confirmed track; a registered reference (the oracle) runs its tracker on them."""
+    target = scenario.plots.take(scenario.plots.target_id != NO_TARGET)
+    if method != PLOTS_REFERENCE:
+        return track(target, registry.compose(method, models, params.tracker, 0.0, params.tracker.seed))
+    count = len(target)
+    values = {"track_id": np.zeros(count, np.int64), "time_unix_s": target.time, "plot_id": target.plot_id,
+              "radar_id": target.radar_id, "x_ecef_m": target.position[:, 0], "y_ecef_m": target.position[:, 1],
+              "z_ecef_m": target.position[:, 2], "weight": np.full(count, params.tracker.weight_confirmed),
+              "association": np.array(["truth"] * count), "association_error": np.zeros(count),
+              "position_covariance": target.covariance}
+    return {name: values[name] for name in COLUMNS}
+
+
+def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
+    """Every run of params, and the references, as name -> track(scenario)."""
+    def method_run(run: EvaluationRun) -> callable:
+        return lambda scenario: track(scenario.plots, registry.compose(
+            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id],
+            run.management))
+
+    def reference_run(method: str) -> callable:
+        return lambda scenario: reference_updates(scenario, method, models, params)
+
+    return {**{run.name: method_run(run) for run in params.evaluate.runs},
+            **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
+
+
+def run_management(params: Params) -> dict[str, TrackManagement]:
+    """The track management rule each run (and reference) is tracked and scored under, by name."""
+    default = registry.management(params.tracker.management, params.tracker)
+    return {**{run.name: registry.management(run.management or params.tracker.management, params.tracker)
+               for run in params.evaluate.runs},
+            **{f"{method}_reference": default for method in params.evaluate.references}}
+
+
+@dataclass
+class UnitResult:
+    """What tracking one scenario with one run contributes to the run's metrics."""
+
+    counts: RouteCounts
+    scan_ospa: np.ndarray                  # OSPA (m) of each scan of the scenario
+    nees: np.ndarray                       # NEES of each confirmed target update (NaN without covariances)
+    seconds: float                         # tracking time alone
+    updates: dict[str, np.ndarray] | None  # the updates, kept only where a picture needs them
+
+
+@dataclass
+class Evaluation:
+    """What every unit reads: the params, the test scenarios, and each run as name -> track(scenario);
+    and the folders they come from (simulated data, routes, models), for worker processes to load
+    their own copy."""
+
+    params: Params
+    folders: tuple[Path, Path, Path]
+    scenarios: list[Scenario]
+    runs: dict[str, Callable[[Scenario], dict[str, np.ndarray]]]
+
+
+def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
+    """The scenarios of the evaluated split and every run, with what the runs need loaded (and
+    checked against params)."""
+    models = load_models(models_dir, params, [run.method for run in params.evaluate.runs]
+                         + [name for name in params.evaluate.references if name in registry.REFERENCES])
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), read_scenarios(params, simulated_dir, routes_dir),
+                      tracker_runs(params, models))
+
+
+def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
+    """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
+    params, scenario = evaluation.params, evaluation.scenarios[index]
+    management = run_management(params)[name]
+    start = time.perf_counter()
+    updates = evaluation.runs[name](scenario)
+    seconds = time.perf_counter() - start
+    scan_of_plot = dict(zip(scenario.plots.plot_id.tolist(), scenario.scans.tolist()))
+    scan_ospa = ospa.scan_ospa(
+        updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), management,
+        scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
+        params.evaluate.ospa_order)
+    pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
+    return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
+                      confirmed_nees(updates, scenario.is_target, scenario.truth, management), seconds,
+                      updates if pictured else None)
+
+
+def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
+    """A run's metrics from its units in scenario order; `plots` is the number of plots of all
+    scenarios, and the speed counts the tracking time alone, summed over the units."""
+    nees = np.concatenate([r.nees for r in results])
+    per_scan = np.concatenate([r.scan_ospa for r in results])
+    seconds = sum(r.seconds for r in results)
+    return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
+            "OSPA_p90": float(np.percentile(per_scan, 90)),
+            "ANEES": float(nees.mean()) if len(nees) and np.isfinite(nees).all() else float("nan"),
+            "plots_per_second": plots / seconds if seconds else float("nan")}
+
+
+def relative_cost(name: str, scenario: Scenario) -> float:
+    """Rough tracking time of one unit (run `name`, one scenario), to hand out the largest first."""
+    method = registry.method_of_run(name)
+    return (PLOTS_REFERENCE_COST if method is None else method.relative_cost) * len(scenario.plots)
+
+
+_WORKER: Evaluation | None = None  # a worker process's evaluation, made by its initializer
+
+
+def _start_worker(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> None:
+    """Worker initializer: read the scenarios and load the models once for all the units it runs.
+    Batches are a few windows: one PyTorch thread (ONNX Runtime sessions use one already)."""
+    global _WORKER
+    torch.set_num_threads(1)
+    _WORKER = prepare(params, simulated_dir, routes_dir, models_dir)
+
+
+def _unit_in_worker(name: str, index: int) -> UnitResult:
+    return evaluate_unit(_WORKER, name, index)
+
+
+def completed_units(evaluation: Evaluation, units: list[tuple[str, int]], workers: int
+                    ) -> Iterator[tuple[tuple[str, int], UnitResult]]:
+    """Each unit (run name, scenario index) with its result, as it completes: in this process with
+    one worker, else in `workers` processes started by the forkserver (a forked copy of a process
+    running PyTorch or ONNX Runtime threads can deadlock), each loading its own scenarios and
+    models. Units are started in the order given."""
+    if workers == 1:
+        for unit in units:
+            yield unit, evaluate_unit(evaluation, *unit)
+        return
+    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("forkserver"), _start_worker,
+                               (evaluation.params, *evaluation.folders))
+    try:
+        pending: dict[Future, tuple[str, int]] = {pool.submit(_unit_in_worker, *unit): unit for unit in units}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield pending.pop(future), future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
+                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict]]:
+    """Every run over every scenario, in `workers` processes: each run's metrics and the OSPA of
+    every scan (scenarios in order), and the example run's updates of the pictured scenarios by
+    scenario id. Each run's metrics are logged, after `label`, as soon as its last unit is in."""
+    scenarios = evaluation.scenarios
+    plots = sum(len(s.plots) for s in scenarios)
+    units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
+                   key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
+    workers = max(1, min(workers, len(units)))
+    parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
+    results, per_scan, examples = {}, {}, {}
+    report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
+    for done, ((name, index), result) in enumerate(completed_units(evaluation, units, workers), start=1):
+        parts[name][index] = result
+        report(done, len(units))
+        if len(parts[name]) == len(scenarios):
+            finished = parts.pop(name)
+            ordered = [finished[i] for i in range(len(scenarios))]
+            results[name] = run_metrics(ordered, plots)
+            per_scan[name] = np.concatenate([r.scan_ospa for r in ordered])
+            examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
+                             if r.updates is not None})
+            log.info("%s %s: %s", label, name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
+    return ({name: results[name] for name in evaluation.runs}, {name: per_scan[name] for name in evaluation.runs},
+            examples)
