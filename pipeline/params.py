@@ -206,6 +206,16 @@ class EvaluationRun:
 
 
 @dataclass(frozen=True)
+class Site:
+    """A radar site other than the training one, where `evaluate_sites` flies the evaluated routes."""
+
+    name: str
+    latitude_deg: float
+    longitude_deg: float
+    height_m: float     # antenna height above the WGS-84 ellipsoid
+
+
+@dataclass(frozen=True)
 class Evaluate:
     split: str
     runs: tuple[EvaluationRun, ...]
@@ -214,6 +224,7 @@ class Evaluate:
     ospa_order: float
     example_scenarios: int
     example_run: str
+    sites: tuple[Site, ...]         # evaluate_sites: the same routes at these radar sites (empty: none)
 
 
 @dataclass(frozen=True)
@@ -644,7 +655,35 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
         raise ParamError(f"{p}.references = {references!r}: must list some of {REFERENCES}")
     return Evaluate(split=split, runs=tuple(runs), references=tuple(references),
                     ospa_cutoff_m=_positive(tree, "ospa_cutoff_m", p), ospa_order=_positive(tree, "ospa_order", p),
-                    example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run)
+                    example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run,
+                    sites=_sites(tree, p))
+
+
+SITE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a site's name labels report rows and keys
+
+
+def _sites(tree: Mapping[str, Any], p: str) -> tuple[Site, ...]:
+    """`evaluate.sites`: named radar sites, each {name, latitude_deg, longitude_deg, height_m}; the
+    latitude and longitude bounds are the radar's, but with the antimeridian only once, as +180."""
+    sites_tree = _get(tree, "sites", p)
+    if not isinstance(sites_tree, list):
+        raise ParamError(f"{p}.sites = {sites_tree!r}: must be a list of {{name, latitude_deg, longitude_deg, "
+                         "height_m}} (empty: no other sites)")
+    sites = []
+    for index, site in enumerate(sites_tree):
+        path = f"{p}.sites[{index}]"
+        if not isinstance(site, Mapping):
+            raise ParamError(f"{path} = {site!r}: must be a mapping {{name, latitude_deg, longitude_deg, height_m}}")
+        name = _get(site, "name", path)
+        if not isinstance(name, str) or not SITE_NAME.fullmatch(name):
+            raise ParamError(f"{path}.name = {name!r}: must be an identifier (letters, digits, _; not a digit first)")
+        sites.append(Site(name, _number(site, "latitude_deg", path, -90.0, 90.0),
+                          _number(site, "longitude_deg", path, -180.0, 180.0, low_open=True),
+                          _number(site, "height_m", path, -500.0, 10000.0)))
+    names = [site.name for site in sites]
+    if len(set(names)) != len(names):
+        raise ParamError(f"{p}.sites: names {names} repeat")
+    return tuple(sites)
 
 
 TUNING_COSTS = ("rmse", "nees")

@@ -167,3 +167,46 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     params_tree["evaluate"]["runs"][-1]["management"] = "weights"
     with pytest.raises(ParamError, match=rf"evaluate.runs\[{len(runs) - 1}\].management = 'weights': must be one of"):
         parse_params(params_tree)
+
+
+def test_default_sites_cover_the_earth(params_tree):
+    """The default `evaluate.sites`: at least three besides the training site, between them both
+    hemispheres, both sides of the antimeridian, the equator and above 65 N."""
+    sites = parse_params(params_tree).evaluate.sites
+    assert len(sites) >= 3
+    assert any(s.latitude_deg < 0 for s in sites) and any(s.latitude_deg > 65 for s in sites)
+    assert any(s.latitude_deg == 0 for s in sites)
+    assert any(s.longitude_deg > 179 for s in sites) and any(s.longitude_deg < -179 for s in sites)
+    params_tree["evaluate"]["sites"] = []
+    assert parse_params(params_tree).evaluate.sites == ()
+
+
+SITE = {"name": "tromso", "latitude_deg": 69.68, "longitude_deg": 18.94, "height_m": 100.0}
+
+
+@pytest.mark.parametrize("sites, fragments", [
+    ({"tromso": SITE}, ["evaluate.sites = ", "must be a list"]),
+    ([{**SITE, "latitude_deg": -90.5}], ["evaluate.sites[0].latitude_deg = -90.5", "[-90.0, 90.0]"]),
+    ([{**SITE, "longitude_deg": -180.0}], ["evaluate.sites[0].longitude_deg = -180.0", "(-180.0, 180.0]"]),
+    ([{**SITE, "longitude_deg": 180.5}], ["evaluate.sites[0].longitude_deg = 180.5"]),
+    ([{**SITE, "height_m": float("nan")}], ["evaluate.sites[0].height_m = nan", "finite"]),
+    ([{**SITE, "name": "north cape"}], ["evaluate.sites[0].name = 'north cape'", "identifier"]),
+    ([{**SITE, "name": "7th"}], ["evaluate.sites[0].name = '7th'"]),
+    ([SITE, {**SITE, "latitude_deg": 0.0}], ["evaluate.sites", "['tromso', 'tromso']", "repeat"]),
+    ([{k: v for k, v in SITE.items() if k != "height_m"}], ["evaluate.sites[0].height_m: missing"]),
+    (["tromso"], ["evaluate.sites[0] = 'tromso'", "mapping"]),
+    ([{**SITE, "altitude_m": 3.0}], ["evaluate.sites[0].altitude_m = 3.0", "unknown key"]),
+])
+def test_invalid_site_names_key_and_value(params_tree, sites, fragments):
+    """A bad `evaluate.sites` entry raises ParamError naming the entry's key and the value."""
+    params_tree["evaluate"]["sites"] = sites
+    with pytest.raises(ParamError) as error:
+        parse_params(params_tree)
+    for fragment in fragments:
+        assert fragment in str(error.value)
+
+
+def test_a_site_at_the_antimeridian_is_plus_180(params_tree):
+    """+180 and -180 are one meridian: written once, as +180."""
+    params_tree["evaluate"]["sites"] = [{**SITE, "longitude_deg": 180}]
+    assert parse_params(params_tree).evaluate.sites[0].longitude_deg == 180.0
