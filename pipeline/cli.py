@@ -65,6 +65,11 @@ def _evaluate(args: argparse.Namespace) -> None:
                  Path(args.reports))
 
 
+def _evaluate_sites(args: argparse.Namespace) -> None:
+    from pipeline.evaluate_sites_stage import run_evaluate_sites
+    run_evaluate_sites(load_params(args.params), Path(args.models), Path(args.reports))
+
+
 def _track(args: argparse.Namespace) -> None:
     from pipeline.track_command import run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
@@ -125,6 +130,10 @@ COMMANDS = {
     "evaluate": (_evaluate, "Run the tracker with every method and window of params over the test scenarios.",
                  "python -m pipeline evaluate --simulated data/simulated --routes data/routes --models models",
                  ["params", "simulated", "routes", "models", "reports"]),
+    "evaluate-sites": (_evaluate_sites, "Fly the evaluated routes past a radar at each of evaluate.sites and score "
+                       "every run there (reports/site_metrics.json; the training site's row from evaluate's).",
+                       "python -m pipeline evaluate-sites --models models --reports reports",
+                       ["params", "models", "reports"]),
     "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "

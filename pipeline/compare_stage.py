@@ -2,8 +2,10 @@
 against the tuned Kalman filters on the hold-out windows.
 
 Trackers: the evaluate stage's metrics (`reports/tracker_metrics.json`), one row each, best
-first by OSPA. Hold-out: the windows the networks were scored on (`reports/models.json`),
-run through each tuned filter (`models/kalman_tuned.json`):
+first by OSPA; and each one's position error at the other radar sites against the training
+site's (`reports/site_metrics.json`, `pipeline.site_report`). Hold-out: the windows the
+networks were scored on (`reports/models.json`), run through each tuned filter
+(`models/kalman_tuned.json`):
 - filter: the estimate of each window's last plot, the filters fed the window's plots with
   their converted-measurement covariance;
 - predictor: the next true state, the filters fed the window's true states (measurement
@@ -17,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import baselines, batch_filters, figures, io, materials, model_eval, windows
+from pipeline import baselines, batch_filters, figures, io, materials, model_eval, site_report, windows
 from pipeline.classical_filters import FilterSettings, load_settings
 from pipeline.params import Params
 from pipeline.scaling import STATE_FEATURES
@@ -26,6 +28,11 @@ from pipeline.tracker import registry
 TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "NOMT", "NOFPA", "ANEES", "plots_per_second")
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
+SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
+               "noise and clutter) flown past a radar at each site of `evaluate.sites` (`dvc repro evaluate_sites`, "
+               "`reports/site_metrics.json`). Per tracker: its position error (MAE) at the training site, and at "
+               "each other site the MAE and its ratio to the training site's; **off**: more than "
+               f"{site_report.TOLERANCE:.0%} away.")
 
 
 def _filtered(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray
@@ -68,12 +75,26 @@ def _cell(value: float | None, form: str) -> str:
     return "n/a" if value is None or not np.isfinite(value) else form.format(value)
 
 
+def by_ospa(runs: dict[str, dict]) -> list[str]:
+    """Run names, best (lowest) OSPA first; runs without one last."""
+    return sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf)
+
+
+def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
+    """The verdict on the radar sites and the table of every run (`runs`, best OSPA first);
+    nothing when there are no sites besides the training one."""
+    if len(sites["sites"]) < 2:
+        return []
+    neural = [name for name in runs if registry.family_of_run(name) == registry.NEURAL]
+    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, by_ospa(runs))]
+
+
 def tracker_table(runs: dict[str, dict]) -> str:
     forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
              "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
     header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "NOMT", "NOFPA", "ANEES (3 = consistent)", "plots/s"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-    for name in sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf):
+    for name in by_ospa(runs):
         values = runs[name]
         lines.append(f"| {name} | " + " | ".join(_cell(values.get(m), forms[m]) for m in TRACKER_METRICS) + " |")
     return "\n".join(lines)
@@ -158,6 +179,7 @@ def _read_json(path: Path, stage: str) -> dict:
 
 def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
     tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
+    sites = site_report.site_comparison(_read_json(reports_dir / "site_metrics.json", "evaluate_sites"))
     networks = _read_json(reports_dir / "models.json", "models_report")
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
@@ -175,7 +197,9 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                               "network_filter_error_m": networks["filter"]["filter_error_m"],
                               "network_prediction_error_m": networks["predictor"]["predictor_error_m"]},
                   "tuning": {kind: {"cost_before": v["cost_before"], "cost_after": v["cost_after"]}
-                             for kind, v in tuning["filters"].items()}}
+                             for kind, v in tuning["filters"].items()},
+                  "sites": sites}
+    site_part = sites_section(sites, runs)
     text = "\n\n".join([
         f"# Neural and classical trackers on the same {params.evaluate.split} scenarios",
         "Generated by `dvc repro compare` (`python -m pipeline compare`) from `reports/tracker_metrics.json`, "
@@ -189,6 +213,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         "this machine.",
         tracker_table(runs), "![OSPA, MAE and ROCA of every tracker](comparison.png)",
         "![OSPA per scan: the share of scans at or below each value](ospa_per_scan.png)",
+        *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         f"## Tuning (on the {tuning['split']} split's target plots, cost {tuning['cost']})", tuning_table(tuning),
     ]) + "\n"

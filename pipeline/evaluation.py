@@ -47,6 +47,7 @@ log = logging.getLogger("pipeline")
 
 PLOTS_REFERENCE = "plots"     # the target's raw plots with the true association (not a tracker)
 PLOTS_REFERENCE_COST = 0.03   # its relative cost (see registry.Method.relative_cost)
+SPEED = "plots_per_second"    # the one metric that is a timing, not a result
 
 
 @dataclass
@@ -191,7 +192,7 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
     return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
             "OSPA_p90": float(np.percentile(per_scan, 90)),
             "ANEES": float(nees.mean()) if len(nees) and np.isfinite(nees).all() else float("nan"),
-            "plots_per_second": plots / seconds if seconds else float("nan")}
+            SPEED: plots / seconds if seconds else float("nan")}
 
 
 def relative_cost(name: str, scenario: Scenario) -> float:

@@ -113,12 +113,14 @@ def tracker_table(summary: dict) -> str:
 
 
 def comparison_section(comparison: dict) -> str:
-    """Who wins, every tracker in one table, and the networks against the tuned filters."""
+    """Who wins, every tracker in one table, the networks against the tuned filters, and each
+    tracker's position error at the other radar sites (reports before `evaluate_sites` have none)."""
     return "\n\n".join([
         "\n".join(compare_stage.verdict(comparison["trackers"], comparison["holdout"])),
         compare_stage.tracker_table(comparison["trackers"]),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
-        compare_stage.holdout_table(comparison["holdout"])])
+        compare_stage.holdout_table(comparison["holdout"]),
+        *compare_stage.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"])])
 
 
 SECTIONS = (

@@ -7,6 +7,7 @@ scenario's plots do not change when other routes are added or removed.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -175,3 +176,10 @@ def _concatenate(parts: list[dict[str, np.ndarray]], schema: pa.Schema, skip: tu
     if not parts:
         return {name: np.array([], dtype=schema.field(name).type.to_pandas_dtype()) for name in names}
     return {name: np.concatenate([part[name] for part in parts]) for name in names}
+
+
+def write_split(plots: pa.Table, truth: pa.Table, description: pa.Table, folder: Path) -> None:
+    """A split's simulated files as the stages read them: `<folder>/{plots,truth,radar}.parquet`."""
+    io.write_parquet(plots, folder / "plots.parquet")
+    io.write_parquet(truth, folder / "truth.parquet")
+    io.write_parquet(description, folder / "radar.parquet")

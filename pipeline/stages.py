@@ -39,9 +39,7 @@ def run_simulate(params: Params, routes_dir: Path, out_dir: Path) -> None:
         results[split.name] = simulate.simulate_split(params, split, table, progress_logger(f"simulate {split.name}"))
     description = simulate.radar_description(params)
     for name, (plots, truth) in results.items():
-        io.write_parquet(plots, out_dir / name / "plots.parquet")
-        io.write_parquet(truth, out_dir / name / "truth.parquet")
-        io.write_parquet(description, out_dir / name / "radar.parquet")
+        simulate.write_split(plots, truth, description, out_dir / name)
         targets = sum(plots.column("is_target").to_pylist())
         log.info("simulate %s: %d target plots, %d false plots -> %s", name, targets, plots.num_rows - targets,
                  out_dir / name)

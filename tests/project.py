@@ -38,6 +38,12 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
                                 {"method": "kalman_cv", "window_m": 4000.0}]
     tree["evaluate"]["example_scenarios"] = 1
     tree["evaluate"]["example_run"] = "via_4000"
+    # evaluate_sites: the training site again (must give evaluate's metrics) and one across the world
+    radar = tree["radar"]
+    tree["evaluate"]["sites"] = [
+        {"name": "home", "latitude_deg": radar["latitude_deg"], "longitude_deg": radar["longitude_deg"],
+         "height_m": radar["height_m"]},
+        {"name": "south_dateline", "latitude_deg": -60.0, "longitude_deg": 179.9, "height_m": 0.0}]
     return tree
 
 
