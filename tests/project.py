@@ -43,7 +43,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["evaluate"]["sites"] = [
         {"name": "home", "latitude_deg": radar["latitude_deg"], "longitude_deg": radar["longitude_deg"],
          "height_m": radar["height_m"]},
-        {"name": "south_dateline", "latitude_deg": -60.0, "longitude_deg": 179.9, "height_m": 0.0}]
+        {"name": "south_dateline", "latitude_deg": -60.0, "longitude_deg": 179.9, "height_m": radar["height_m"]}]
     return tree
 
 
