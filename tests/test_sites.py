@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline import io, routes, site_report, sites
+from pipeline import compare_stage, io, routes, site_report, sites
+from pipeline.evaluate_sites_stage import training_runs
 from pipeline.params import Site
 from tests import tracker_fixtures as tf
 from tests.project import environment
@@ -137,3 +138,21 @@ def test_site_comparison_marks_what_moves_more_than_the_tolerance():
     assert site_report.site_sentence(comparison, ["via_4000"]) == (
         "- Radar sites: 0 of 1 neural trackers keep their position error (MAE) within 10% of the training "
         "site's at all 2 other sites; the largest change: via_4000 at b, ratio 1.150.")
+
+
+def test_stale_evaluate_metrics_are_refused(tmp_path: Path):
+    """The training site's row must be of params' runs: metrics of other runs name the stage to rerun."""
+    params = tf.make_params({"evaluate.runs": [{"method": "kalman_cv", "window_m": 4000.0}],
+                             "evaluate.example_run": "kalman_cv_4000"})
+    io.write_json({"runs": {"via_4000": {"MAE": 1.0}}}, tmp_path / "tracker_metrics.json")
+    with pytest.raises(io.InputError, match=r"runs \['via_4000'\], but params evaluate \['kalman_cv_4000', "
+                                            r"'oracle_reference', 'plots_reference'\]; run `dvc repro evaluate`"):
+        training_runs(params, tmp_path / "tracker_metrics.json")
+
+
+def test_no_other_sites_no_section():
+    """With `evaluate.sites: []` the comparison has no radar-sites section."""
+    training = {"name": "training", "latitude_deg": 60.0, "longitude_deg": 25.0, "height_m": 60.0,
+                "runs": {"via_4000": {"MAE": 200.0}}}
+    comparison = site_report.site_comparison({"training": training, "sites": []})
+    assert compare_stage.sites_section(comparison, {"via_4000": {"OSPA": 1.0}}) == []
