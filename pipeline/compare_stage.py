@@ -162,7 +162,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
     holdout_path = windows_dir / "holdout.parquet"
-    holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA))
+    holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA), params.radar)
     held = holdout_comparison(holdout, filters, params)
     for kind, key in (("filter", "filter_windows"), ("predictor", "predictor_windows")):
         if networks[kind]["holdout_windows"] != held[key]:

@@ -53,6 +53,28 @@ def enu_rotations(latitude_deg: np.ndarray, longitude_deg: np.ndarray) -> np.nda
     ], axis=-2)
 
 
+def radial_rotations(points_ecef: np.ndarray, radar_ecef: np.ndarray) -> np.ndarray:
+    """Per point (N x 3 x 3): ECEF offsets -> (cross-range, down-range, up) axes at the point.
+
+    Up is the ellipsoid normal at the point; down-range the horizontal part of the line of
+    sight from the radar (`radar_ecef`, (3,) or (N, 3)); cross-range = down-range x up, so
+    with down-range north it is east, as in ENU. Unlike ENU, the axes depend only on where the
+    point is relative to the radar, not on where north is: the same radar-relative geometry gives
+    the same axes at any site, whereas ENU turns with the meridian convergence (the change of
+    north between the radar and a point 200 km east of it is 3 degrees at 60 degrees latitude).
+    Directly above the radar, where down-range is undefined, it is north.
+    """
+    points = np.asarray(points_ecef, dtype=float)
+    latitude, longitude, _ = ecef_to_geodetic(points)
+    enu = enu_rotations(latitude, longitude)
+    up = enu[:, 2]
+    line = points - np.asarray(radar_ecef, dtype=float)
+    horizontal = line - np.einsum("ni,ni->n", line, up)[:, None] * up
+    length = np.linalg.norm(horizontal, axis=1, keepdims=True)
+    down = np.where(length > 1.0, horizontal / np.maximum(length, 1.0), enu[:, 1])
+    return np.stack([np.cross(down, up), down, up], axis=1)
+
+
 def thesis_elevation(slant_range_m: np.ndarray, altitude_m: np.ndarray, radar_height_m: float,
                      earth_radius_m: float) -> np.ndarray:
     """Eq. 4.2: elevation angle (rad), assuming the radar's earth radius also at the target."""

@@ -461,8 +461,8 @@ def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Ra
 def _windows(tree: Mapping[str, Any]) -> Windows:
     p = "windows"
     frame = _get(tree, "frame", p)
-    if frame not in ("ecef", "enu"):
-        raise ParamError(f"{p}.frame = {frame!r}: must be 'ecef' or 'enu'")
+    if frame not in ("ecef", "enu", "radial"):
+        raise ParamError(f"{p}.frame = {frame!r}: must be 'ecef', 'enu' or 'radial'")
     windows = Windows(
         segment_gap_s=_positive(tree, "segment_gap_s", p),
         holdout_fraction=_number(tree, "holdout_fraction", p, 0.0, 1.0),
