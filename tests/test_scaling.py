@@ -149,7 +149,8 @@ def test_local_frames_give_the_same_window_for_the_same_manoeuvre_at_two_radars(
     # 100 km east would not be the same manoeuvre at both sites: local north there is turned
     # from the radar's by the meridian convergence (1.6 deg at 60 N, 0.6 deg at 34 S); in the
     # radial frame it would be (tests/test_site_independence.py). Straight above the radar the
-    # radial frame's down-range is north, so here it equals ENU.
+    # radial frame's down-range is north, so here it is ENU but for its up, the ellipsoid's normal
+    # through the point rather than the geodetic vertical (at most 0.1 m apart across this window: 2.5e-5).
     sites = {"finland": (60.3, 24.9, 60.0), "australia": (-33.9, 151.2, 20.0)}
     windows = {"finland": coordinated_turn(sites["finland"]),
                "australia": coordinated_turn(sites["australia"], start_s=T0 + 3600.0)}
@@ -158,8 +159,8 @@ def test_local_frames_give_the_same_window_for_the_same_manoeuvre_at_two_radars(
         scaler = scaling.plot_scaler(DT_MAX_S, MAX_DIFF_M, R_MAX_M, 10, frame, False)
         scaled[frame] = [scaler.transform(raw, origin_of(raw, scaler, [sites[name]])) for name, raw in windows.items()]
     np.testing.assert_allclose(scaled["enu"][0], scaled["enu"][1], rtol=0.0, atol=1e-4)
-    np.testing.assert_allclose(scaled["radial"][0], scaled["enu"][0], rtol=0.0, atol=1e-9)
-    np.testing.assert_allclose(scaled["radial"][1], scaled["enu"][1], rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(scaled["radial"][0], scaled["enu"][0], rtol=0.0, atol=2.5e-5)
+    np.testing.assert_allclose(scaled["radial"][1], scaled["enu"][1], rtol=0.0, atol=2.5e-5)
     assert np.abs(scaled["ecef"][0] - scaled["ecef"][1]).max() > 0.1
 
 
