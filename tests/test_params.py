@@ -45,6 +45,19 @@ def test_default_params_load():
     ("radar.range_min_m", 500e3, ["radar.range_min_m", "500000.0"]),
     ("routes.start_time_utc", "tomorrow", ["routes.start_time_utc", "tomorrow"]),
     ("aircraft.fighter.altitude_m", [1000.0, 16000.0], ["aircraft.fighter.altitude_m", "16000.0"]),
+    # the sustained_turns and climb_dive strategies and the envelope keys only they read
+    ("routes.splits.train.climb_dive", -1, ["routes.splits.train.climb_dive", "-1"]),
+    ("routes.sustained_turns.turn_rate_dps", [3.0, 1.5], ["routes.sustained_turns.turn_rate_dps", "above"]),
+    ("routes.sustained_turns.turn_rate_dps", [0.0, 3.0], ["routes.sustained_turns.turn_rate_dps", "(0, inf]"]),
+    ("routes.sustained_turns.holding_probability", 1.5, ["routes.sustained_turns.holding_probability", "1.5"]),
+    ("routes.sustained_turns.straight_s", [-60.0, 300.0], ["routes.sustained_turns.straight_s", "-60.0"]),
+    ("routes.climb_dive.vertical_rate_fraction", [0.5, 1.5], ["routes.climb_dive.vertical_rate_fraction", "1.5"]),
+    ("routes.climb_dive.vertical_acceleration_fraction", 0.0, ["routes.climb_dive.vertical_acceleration_fraction"]),
+    ("routes.climb_dive.altitude_change_m", [2000.0, 4000.0], ["routes.climb_dive.altitude_change_m",
+                                                               "aircraft.light"]),
+    ("routes.climb_dive.turn_rate_dps", -1.0, ["routes.climb_dive.turn_rate_dps", "-1.0"]),
+    ("aircraft.light.max_vertical_rate_mps", 80.0, ["aircraft.light.max_vertical_rate_mps", "80.0"]),
+    ("aircraft.airliner.holding_speed_mps", [0.0, 120.0], ["aircraft.airliner.holding_speed_mps", "positive"]),
     # impossible training schedules
     ("training.predictor.early_stopping_min_improvement", -0.01,
      ["training.predictor.early_stopping_min_improvement", "-0.01"]),
@@ -67,7 +80,7 @@ def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
 
 
 @pytest.mark.parametrize("section, key", [("radar", "sigma_range_m"), ("routes", "sample_interval_s"),
-                                          ("simulate", "seed")])
+                                          ("simulate", "seed"), ("routes", "climb_dive")])
 def test_missing_key_is_named(params_tree, section, key):
     """A missing key raises ParamError naming its full path."""
     del params_tree[section][key]
