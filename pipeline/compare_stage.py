@@ -29,7 +29,7 @@ FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
 
 
 def _filtered(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray
-              ) -> batch_filters.BatchState:
+              ) -> batch_filters.FilteredSequences:
     valid = np.ones(times.shape, dtype=bool)
     restart = np.zeros(times.shape, dtype=bool)
     restart[:, 0] = True
@@ -45,7 +45,7 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
     positions = raw[:, :, 1:4]
     covariances = baselines.measurement_covariance(positions.reshape(-1, 3), params.radar).reshape(
         *positions.shape[:2], 3, 3)
-    filtered = {kind: np.linalg.norm(_filtered(settings, raw[:, :, 0], positions, covariances)[0][:, -1] - truth,
+    filtered = {kind: np.linalg.norm(_filtered(settings, raw[:, :, 0], positions, covariances).position[:, -1] - truth,
                                      axis=1).mean() for kind, settings in filters.items()}
 
     inputs = params.windows.predictor_inputs
@@ -56,7 +56,7 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
     sigma = np.broadcast_to(params.training.kalman_truth_sigma_m ** 2 * np.eye(3), (*given.shape[:2], 3, 3))
     predicted = {}
     for kind, settings in filters.items():
-        _, _, state = _filtered(settings, given[:, :, 0], given[:, :, position], sigma)
+        state = _filtered(settings, given[:, :, 0], given[:, :, position], sigma).last
         forecast, _ = batch_filters.predict_positions(settings, state, target[:, 0] - given[:, -1, 0])
         predicted[kind] = np.linalg.norm(forecast - target[:, position], axis=1).mean()
     return {"filter_windows": int(len(raw)), "predictor_windows": int(len(given)),

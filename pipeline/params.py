@@ -647,7 +647,7 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
                     example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run)
 
 
-TUNING_COSTS = ("rmse", "nees")
+TUNING_COSTS = ("rmse", "nees", "rmse_in_gate")
 
 
 def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
