@@ -23,7 +23,8 @@ from pipeline.params import Params
 from pipeline.scaling import STATE_FEATURES
 from pipeline.tracker import registry
 
-TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "NOMT", "NOFPA", "ANEES", "plots_per_second")
+TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NOMT", "NOFPA", "ANEES",
+                   "plots_per_second")
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
 
@@ -69,9 +70,11 @@ def _cell(value: float | None, form: str) -> str:
 
 
 def tracker_table(runs: dict[str, dict]) -> str:
-    forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
+    forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "tracks_per_aircraft": "{:.2f}",
+             "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
              "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
-    header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "NOMT", "NOFPA", "ANEES (3 = consistent)", "plots/s"]
+    header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "aircraft tracks per route", "NOMT",
+              "NOFPA", "ANEES (3 = consistent)", "plots/s"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for name in sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf):
         values = runs[name]
