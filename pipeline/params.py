@@ -225,6 +225,7 @@ class TrackerParams:
     confirm_n: int          # ... within the last this many opportunities (scans)
     delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
     opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
+    mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
 
 
 @dataclass(frozen=True)
@@ -673,6 +674,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         confirm_n=_integer(tree, "confirm_n", p, 1),
         delete_after_s=_positive(tree, "delete_after_s", p),
         opportunity_s=radar.scan_period_s,
+        mature_first=_boolean(tree, "mature_first", p),
     )
     if tracker.confirm_m > tracker.confirm_n:
         raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")
@@ -734,7 +736,7 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
                     example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run)
 
 
-TUNING_COSTS = ("rmse", "nees")
+TUNING_COSTS = ("rmse", "nees", "rmse_in_gate")
 
 
 def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
