@@ -170,10 +170,10 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
     naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
     that does not exist is named with its run."""
-    default_names = [run.name for run in parse_params(params_tree).evaluate.runs]
-    params_tree["evaluate"]["runs"].append({"method": "imm", "window_m": 4000.0, "management": "m_of_n"})
+    params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
+                                       {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs
-    assert [run.name for run in runs] == default_names + ["imm_4000_m_of_n"]
+    assert [run.name for run in runs] == ["via_4000", "imm_4000", "imm_4000_m_of_n"]
     assert runs[-1].management == "m_of_n" and all(run.management is None for run in runs[:-1])
     assert registry.method_of_run("imm_4000_m_of_n").name == "imm"
     assert registry.method_of_run("imm_gnn_4000_thesis").name == "imm_gnn"
