@@ -178,12 +178,29 @@ def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, 
     state.x[rows], state.P[rows], state.mu[rows] = source.x[tracks], source.P[tracks], source.mu[tracks]
 
 
+@dataclass(frozen=True)
+class FilteredSequences:
+    """What `filter_sequences` gives for B sequences of T steps.
+
+    `position` (B, T, 3) metres and `covariance` (B, T, 3, 3) m^2: the filtered positions, NaN
+    at invalid steps. `innovation_distance` (B, T): each measurement's normalised innovation
+    squared against the predicted density the tracker gates with, d' S^-1 d with d = z - x_pred
+    and S = P_pred + R (the IMM's models combined with the predicted mode probabilities), NaN
+    where the track (re)starts or the step is padding; chi-square with 3 degrees of freedom for a
+    consistent filter (Bar-Shalom, Li & Kirubarajan 2001, 5.4.2). `last`: the state after each
+    row's last step."""
+
+    position: np.ndarray
+    covariance: np.ndarray
+    innovation_distance: np.ndarray
+    last: BatchState
+
+
 def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray,
-                     valid: np.ndarray, restart: np.ndarray) -> tuple[np.ndarray, np.ndarray, BatchState]:
+                     valid: np.ndarray, restart: np.ndarray) -> FilteredSequences:
     """Filter B measurement sequences side by side: times (B, T) seconds, positions (B, T, 3) metres,
     covariances (B, T, 3, 3) m^2. Invalid steps (padding) are skipped; at `restart` steps a track
-    starts afresh from the measurement. Returns the filtered positions (B, T, 3) and their
-    covariances (B, T, 3, 3), NaN at invalid steps, and the state after each track's last step."""
+    starts afresh from the measurement."""
     B, T = times.shape
     moving = valid & ~restart
     # Each step's time since the row's previous valid step (times[:, 0] when there is none).
@@ -201,8 +218,12 @@ def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.
     M, n = state.mu.shape[1], state.x.shape[-1]
     position = slice(None, None, n // 3)
     model_x, model_P, model_mu = np.empty((T, B, M, 3)), np.empty((T, B, M, 3, 3)), np.empty((T, B, M))
+    prior_x, prior_P, prior_mu = np.empty_like(model_x), np.empty_like(model_P), np.empty_like(model_mu)
     for step, step_motion in enumerate(_motion_per_step(settings, dt)):
-        after = updated(settings, predicted(settings, state, step_motion[:, 0], step_motion[:, 1]), z[step], R[step])
+        prior = predicted(settings, state, step_motion[:, 0], step_motion[:, 1])
+        prior_x[step], prior_P[step], prior_mu[step] = prior.x[..., position], prior.P[..., position, position], \
+            prior.mu
+        after = updated(settings, prior, z[step], R[step])
         if repaired[step]:
             idle, cells = ~valid[:, step], slice(fresh_bounds[step], fresh_bounds[step + 1])
             _overwrite(after, idle, state, idle)                                    # padding: the state stays
@@ -213,7 +234,13 @@ def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.
     x, P = combined(model_mu, model_x, model_P)                                     # (T, B, 3), (T, B, 3, 3)
     invalid = ~valid.T
     x[invalid], P[invalid] = np.nan, np.nan
-    return np.ascontiguousarray(np.swapaxes(x, 0, 1)), np.ascontiguousarray(np.swapaxes(P, 0, 1)), state
+    prior_position, prior_covariance = combined(prior_mu, prior_x, prior_P)
+    innovation = z - prior_position
+    S_inverse, _ = inverse3(prior_covariance + R)
+    distance = np.einsum("tbi,tbij,tbj->tb", innovation, S_inverse, innovation)
+    distance[~moving.T] = np.nan
+    return FilteredSequences(np.ascontiguousarray(np.swapaxes(x, 0, 1)), np.ascontiguousarray(np.swapaxes(P, 0, 1)),
+                             np.ascontiguousarray(distance.T), state)
 
 
 def predict_positions(settings: FilterSettings, state: BatchState, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

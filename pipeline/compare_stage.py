@@ -25,7 +25,8 @@ from pipeline.params import Params
 from pipeline.scaling import STATE_FEATURES
 from pipeline.tracker import registry
 
-TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "NOMT", "NOFPA", "ANEES", "plots_per_second")
+TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NOMT", "NOFPA", "ANEES",
+                   "plots_per_second")
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
 SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
@@ -36,7 +37,7 @@ SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's 
 
 
 def _filtered(settings: FilterSettings, times: np.ndarray, positions: np.ndarray, covariances: np.ndarray
-              ) -> batch_filters.BatchState:
+              ) -> batch_filters.FilteredSequences:
     valid = np.ones(times.shape, dtype=bool)
     restart = np.zeros(times.shape, dtype=bool)
     restart[:, 0] = True
@@ -52,7 +53,7 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
     positions = raw[:, :, 1:4]
     covariances = baselines.measurement_covariance(positions.reshape(-1, 3), params.radar).reshape(
         *positions.shape[:2], 3, 3)
-    filtered = {kind: np.linalg.norm(_filtered(settings, raw[:, :, 0], positions, covariances)[0][:, -1] - truth,
+    filtered = {kind: np.linalg.norm(_filtered(settings, raw[:, :, 0], positions, covariances).position[:, -1] - truth,
                                      axis=1).mean() for kind, settings in filters.items()}
 
     inputs = params.windows.predictor_inputs
@@ -63,7 +64,7 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
     sigma = np.broadcast_to(params.training.kalman_truth_sigma_m ** 2 * np.eye(3), (*given.shape[:2], 3, 3))
     predicted = {}
     for kind, settings in filters.items():
-        _, _, state = _filtered(settings, given[:, :, 0], given[:, :, position], sigma)
+        state = _filtered(settings, given[:, :, 0], given[:, :, position], sigma).last
         forecast, _ = batch_filters.predict_positions(settings, state, target[:, 0] - given[:, -1, 0])
         predicted[kind] = np.linalg.norm(forecast - target[:, position], axis=1).mean()
     return {"filter_windows": int(len(raw)), "predictor_windows": int(len(given)),
@@ -90,9 +91,11 @@ def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
 
 
 def tracker_table(runs: dict[str, dict]) -> str:
-    forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
+    forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "tracks_per_aircraft": "{:.2f}",
+             "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
              "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
-    header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "NOMT", "NOFPA", "ANEES (3 = consistent)", "plots/s"]
+    header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "aircraft tracks per route", "NOMT",
+              "NOFPA", "ANEES (3 = consistent)", "plots/s"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for name in by_ospa(runs):
         values = runs[name]
@@ -117,15 +120,16 @@ def holdout_table(holdout: dict) -> str:
 
 def tuning_table(tuning: dict) -> str:
     lines = [f"| filter | process noise | velocity spread (m/s) | {tuning['cost']} before | after | RMSE (m) | "
-             "raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % | target plots outside the gate |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, values in tuning["filters"].items():
         after = values["after"]
         lines.append(
             f"| {FILTER_LABELS[kind]} | {', '.join(f'{v:.3g}' for v in values['noise_std'])} | "
             f"{values['velocity_std_mps']:.0f} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
             f"{after['rmse_m']:.1f} | {after['plot_rmse_m']:.1f} | {after['anees']:.3f} | "
-            f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} |")
+            f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} | "
+            f"{after['gate_misses']:.2%} (gate allows {after['gate_allowance']:.1%}) |")
     return "\n".join(lines)
 
 
@@ -184,7 +188,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
     holdout_path = windows_dir / "holdout.parquet"
-    holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA))
+    holdout = model_eval.holdout_plots(io.read_parquet(holdout_path, materials.HOLDOUT_SCHEMA), params.radar)
     held = holdout_comparison(holdout, filters, params)
     for kind, key in (("filter", "filter_windows"), ("predictor", "predictor_windows")):
         if networks[kind]["holdout_windows"] != held[key]:

@@ -39,10 +39,12 @@ def _local_km(table: pa.Table, params: Params, prefix: str = "") -> tuple[np.nda
 
 
 def route_examples(routes: pa.Table, plots: pa.Table, params: Params, per_strategy: int) -> bytes:
-    """A few routes of each strategy on the radar's plane, with their target and false plots."""
-    figure, axes = plt.subplots(1, len(STRATEGIES), figsize=(13, 6.4))
+    """A few routes of each strategy on the radar's plane, with their target and false plots; each
+    route's altitude span is in its legend (climb_dive routes climb and dive)."""
+    rows = -(-len(STRATEGIES) // 2)  # two strategies a row
+    figure, axes = plt.subplots(rows, 2, figsize=(13, 6.4 * rows), squeeze=False)
     half = params.radar.range_max_m * np.sqrt(2.0) / 2000.0
-    for axis, strategy in zip(np.atleast_1d(axes), STRATEGIES):
+    for axis, strategy in zip(axes.flat, STRATEGIES):
         ids = np.unique(routes.filter(pa.compute.equal(routes.column("strategy"), strategy))
                         .column("route_id").to_numpy())[:per_strategy]
         for colour, route_id in zip(plt.cm.tab10.colors, ids):
@@ -51,8 +53,10 @@ def route_examples(routes: pa.Table, plots: pa.Table, params: Params, per_strate
             false = scenario.filter(pa.compute.invert(scenario.column("is_target")))
             target = scenario.filter(scenario.column("is_target"))
             axis.scatter(*_local_km(false, params), s=1, color=colour, alpha=0.12, linewidths=0)
+            altitude_km = route.column("altitude_m").to_numpy() / 1000.0
             axis.plot(*_local_km(route, params), color=colour, lw=1.4,
-                      label=f"route {route_id} ({route.column('aircraft_type')[0].as_py()})")
+                      label=f"route {route_id} ({route.column('aircraft_type')[0].as_py()}, "
+                            f"{altitude_km.min():.1f}-{altitude_km.max():.1f} km up)")
             axis.scatter(*_local_km(target, params), s=5, color="black", linewidths=0)
         axis.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k--", lw=0.8)
         axis.plot(0, 0, "k^", ms=8)

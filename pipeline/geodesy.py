@@ -53,6 +53,40 @@ def enu_rotations(latitude_deg: np.ndarray, longitude_deg: np.ndarray) -> np.nda
     ], axis=-2)
 
 
+def radial_rotations(points_ecef: np.ndarray, radar_ecef: np.ndarray) -> np.ndarray:
+    """Per point (N x 3 x 3): ECEF offsets -> (cross-range, down-range, up) axes at the point.
+
+    Up is the normal of the ellipsoid through the point, (x / a^2, y / a^2, z / b^2) normalised
+    (the ellipsoid's gradient there; within 1e-5 rad of the geodetic vertical below 15 km, and
+    in closed form: the tracker computes it for every network window); down-range the horizontal
+    part of the line of sight from the radar (`radar_ecef`, (3,) or (N, 3)); cross-range =
+    down-range x up, so with down-range north it is east, as in ENU. Unlike ENU, the axes depend
+    only on where the point is relative to the radar, not on where north is: the same
+    radar-relative geometry gives the same axes at any site, whereas ENU turns with the meridian
+    convergence (north 200 km east of a radar at 60 degrees latitude is 3 degrees from the
+    radar's). Directly above the radar, where down-range is undefined, it is north.
+    """
+    points = np.asarray(points_ecef, dtype=float)
+    up = points / np.array([1.0, 1.0, 1.0 - WGS84_E2])
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    line = points - np.asarray(radar_ecef, dtype=float)
+    horizontal = line - (line * up).sum(axis=1, keepdims=True) * up
+    length = np.linalg.norm(horizontal, axis=1, keepdims=True)
+    overhead = length[:, 0] <= 1.0
+    if overhead.any():
+        east = np.column_stack([-up[overhead, 1], up[overhead, 0], np.zeros(overhead.sum())])
+        east /= np.linalg.norm(east, axis=1, keepdims=True)
+        horizontal[overhead], length[overhead] = _cross(up[overhead], east), 1.0
+    down = horizontal / length
+    return np.stack([_cross(down, up), down, up], axis=1)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays, written out: np.cross costs more than the arithmetic here."""
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
 def thesis_elevation(slant_range_m: np.ndarray, altitude_m: np.ndarray, radar_height_m: float,
                      earth_radius_m: float) -> np.ndarray:
     """Eq. 4.2: elevation angle (rad), assuming the radar's earth radius also at the target."""

@@ -2,7 +2,7 @@
 
 Every material table has `window_id`, `step`, `scenario_id`, `segment_id`, `plot_id` per
 step, the window's `linearity` and centring origin (`origin_t`, `origin_x/y/z` in ECEF,
-`origin_r`) per window, and scaled feature columns:
+`origin_r`, and its radar's site `origin_radar_x/y/z` in ECEF) per window, and scaled feature columns:
 
 - filter:      `in_*` plots [t, x, y, z, r], `out_*` truth at the same times, same scaling
 - predictor:   `state_*` true states [t, dt, x, y, z, r] over 6 steps: inputs are steps
@@ -34,6 +34,9 @@ HOLDOUT_SCHEMA = io.schema(
     ("true_x_ecef_m", pa.float64()), ("true_y_ecef_m", pa.float64()), ("true_z_ecef_m", pa.float64()),
     ("true_range_m", pa.float64()))
 
+# The centring origin of each window, `WindowScaler.origin`'s columns: its first sample and its radar's site.
+ORIGIN_COLUMNS = ("t", "x", "y", "z", "r", "radar_x", "radar_y", "radar_z")
+
 # (before, after balancing) in the thesis, for the report.
 THESIS_COUNTS = {"filter": (83309, 39682), "predictor": (93675, 50730), "autoencoder": (96751, 12464)}
 
@@ -62,7 +65,7 @@ def _ids(plots: TargetPlots, starts: np.ndarray, length: int) -> dict[str, np.nd
 
 
 def _per_window(origin: np.ndarray, values: np.ndarray) -> dict[str, np.ndarray]:
-    return {"linearity": values, **{f"origin_{name}": origin[:, i] for i, name in enumerate("txyzr")}}
+    return {"linearity": values, **{f"origin_{name}": origin[:, i] for i, name in enumerate(ORIGIN_COLUMNS)}}
 
 
 def _balanced(plots: TargetPlots, starts: np.ndarray, length: int, cfg: Windows, rng: np.random.Generator
@@ -79,7 +82,7 @@ def _material(plots: TargetPlots, length: int, cfg: Windows, scaler: WindowScale
     all are centred on the first array's first sample."""
     starts, before, after = _balanced(plots, window_starts(plots.segment_id, length), length, cfg, rng)
     raw = raw_windows(starts)
-    origin = scaler.origin(next(iter(raw.values())))
+    origin = scaler.origin(next(iter(raw.values())), plots.radar_position[starts])
     table = long_table({prefix: scaler.transform(values, origin) for prefix, values in raw.items()},
                        _ids(plots, starts, length), _per_window(origin, after))
     return Material(table, before, after)
@@ -115,7 +118,7 @@ def calibration_material(targets: TargetPlots, all_plots: pa.Table, cfg: Windows
     window, candidate = _calibration_pairs(targets, starts + head - 1, candidates, cfg)
     raw = np.concatenate([gather(targets.plot_features(), starts[window], head),
                           candidates["features"][candidate][:, None, :]], axis=1)
-    origin = scaler.origin(raw)
+    origin = scaler.origin(raw, targets.radar_position[starts[window]])
     ids = {name: np.column_stack([gather(getattr(targets, name), starts[window], head), candidates[name][candidate]])
            for name in ("scenario_id", "plot_id")}
     ids["segment_id"] = np.repeat(targets.segment_id[starts[window]][:, None], head + 1, axis=1)

@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import torch
 
-from pipeline import baselines, windows
+from pipeline import baselines, geodesy, windows
 from pipeline.model_store import LoadedModel
 from pipeline.params import Radar
 from pipeline.scaling import PLOT_FEATURES, STATE_FEATURES, WindowScaler
@@ -32,13 +32,15 @@ class KalmanReference:
     truth_sigma_m: float  # measurement sigma when a Kalman filter is fed true states
 
 
-def holdout_plots(table: pa.Table) -> windows.TargetPlots:
+def holdout_plots(table: pa.Table, radar: Radar) -> windows.TargetPlots:
+    """The hold-out's target plots, all measured by `radar`."""
     column = lambda name: table.column(name).to_numpy()  # noqa: E731
     return windows.TargetPlots(
         scenario_id=column("scenario_id"), plot_id=column("plot_id"), segment_id=column("segment_id"),
         time=column("time_unix_s"), position=np.column_stack([column(f"{a}_ecef_m") for a in "xyz"]),
         range_m=column("range_m"), true_position=np.column_stack([column(f"true_{a}_ecef_m") for a in "xyz"]),
-        true_range_m=column("true_range_m"))
+        true_range_m=column("true_range_m"),
+        radar_position=np.tile(geodesy.radar_site_ecef(radar), (table.num_rows, 1)))
 
 
 def run_network(model: LoadedModel, scaled: np.ndarray) -> np.ndarray:
@@ -64,7 +66,7 @@ def evaluate_filter(model: LoadedModel, plots: windows.TargetPlots, radar: Radar
     starts = windows.window_starts(plots.segment_id, length)
     raw = windows.gather(plots.plot_features(), starts, length)
     truth = windows.gather(plots.true_features(), starts, length)[:, -1]
-    origin = model.scaler.origin(raw)
+    origin = model.scaler.origin(raw, plots.radar_position[starts])
     outputs = run_network(model, model.scaler.transform(raw, origin))
     estimate = output_scaler(model.scaler).inverse(outputs, origin)[:, -1]
     positions = raw[:, :, 1:4]
@@ -86,7 +88,7 @@ def evaluate_predictor(model: LoadedModel, plots: windows.TargetPlots, kalman: K
     starts = windows.window_starts(plots.segment_id, inputs + 1)
     states = windows.state_features(plots.true_features(), starts, inputs + 1)
     given, truth = states[:, :inputs], states[:, -1]
-    origin = model.scaler.origin(given)
+    origin = model.scaler.origin(given, plots.radar_position[starts])
     outputs = run_network(model, model.scaler.transform(given, origin))
     predicted = output_scaler(model.scaler).inverse(outputs, origin)[:, -1]
     position = [STATE_FEATURES.index(a) for a in "xyz"]

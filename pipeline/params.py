@@ -19,7 +19,8 @@ import yaml
 
 from pipeline.tracker import registry
 
-STRATEGIES = ("constant_jerk", "random_turns")
+# New strategies go at the end: a route's random stream is seeded by its strategy's index here.
+STRATEGIES = ("constant_jerk", "random_turns", "sustained_turns", "climb_dive")
 MAX_CONFIRM_N = 52  # an M-of-N track's last confirm_n opportunities are the bits of its weight (a double's 53)
 
 
@@ -71,6 +72,9 @@ class Aircraft:
     altitude_max_m: float
     rcs_front_m2: float
     rcs_side_m2: float
+    holding_speed_min_mps: float   # sustained turns (holding patterns, orbits) are flown at these speeds
+    holding_speed_max_mps: float
+    max_vertical_rate_mps: float   # climbs and dives (climb_dive) at most this fast
 
 
 @dataclass(frozen=True)
@@ -92,6 +96,38 @@ class RandomTurns:
 
 
 @dataclass(frozen=True)
+class SustainedTurns:
+    holding_probability: float     # a holding pattern (racetrack), else a calibration orbit (360 deg turns)
+    turn_rate_min_dps: float
+    turn_rate_max_dps: float
+    turning_time_min_s: float      # total time in turns, whole laps or orbits
+    turning_time_max_s: float
+    holding_leg_min_s: float       # the straight legs between a holding pattern's 180 deg turns
+    holding_leg_max_s: float
+    straight_min_s: float          # the entry and the exit leg
+    straight_max_s: float
+    attempts: int
+
+
+@dataclass(frozen=True)
+class ClimbDive:
+    length_min_m: float
+    length_max_m: float
+    min_length_m: float
+    level_min_s: float             # level flight before each climb or dive
+    level_max_s: float
+    altitude_change_min_m: float
+    altitude_change_max_m: float
+    vertical_rate_min_fraction: float   # of the type's max_vertical_rate_mps
+    vertical_rate_max_fraction: float
+    vertical_acceleration_fraction: float  # of the type's max_acceleration_mps2
+    turn_rate_dps: float           # the gentle turns: at most this rate, either way
+    turn_duration_min_s: float
+    turn_duration_max_s: float
+    attempts: int
+
+
+@dataclass(frozen=True)
 class Split:
     name: str
     counts: Mapping[str, int]
@@ -106,6 +142,8 @@ class Routes:
     start_spread_s: float
     constant_jerk: ConstantJerk
     random_turns: RandomTurns
+    sustained_turns: SustainedTurns
+    climb_dive: ClimbDive
     splits: tuple[Split, ...]
 
     def split(self, name: str) -> Split:
@@ -187,6 +225,7 @@ class TrackerParams:
     confirm_n: int          # ... within the last this many opportunities (scans)
     delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
     opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
+    mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
 
 
 @dataclass(frozen=True)
@@ -357,6 +396,14 @@ def _interval(tree: Mapping[str, Any], key: str, path: str, low: float = 0.0) ->
     return lower, upper
 
 
+def _positive_interval(tree: Mapping[str, Any], key: str, path: str, high: float = math.inf) -> tuple[float, float]:
+    """An ordered [lower, upper] pair with 0 < lower and upper <= high."""
+    lower, upper = _interval(tree, key, path)
+    if lower <= 0.0 or upper > high:
+        raise ParamError(f"{path}.{key} = {[lower, upper]}: must lie in (0, {high}]")
+    return lower, upper
+
+
 def _radar(tree: Mapping[str, Any]) -> Radar:
     p = "radar"
     radar = Radar(
@@ -392,9 +439,11 @@ def _aircraft(name: str, tree: Mapping[str, Any]) -> Aircraft:
     p = f"aircraft.{name}"
     speed = _interval(tree, "speed_mps", p)
     altitude = _interval(tree, "altitude_m", p)
-    if speed[0] <= 0.0:
-        raise ParamError(f"{p}.speed_mps = {list(speed)}: speeds must be positive")
-    return Aircraft(
+    holding = _interval(tree, "holding_speed_mps", p)
+    for key, interval in (("speed_mps", speed), ("holding_speed_mps", holding)):
+        if interval[0] <= 0.0:
+            raise ParamError(f"{p}.{key} = {list(interval)}: speeds must be positive")
+    kind = Aircraft(
         name=name,
         speed_min_mps=speed[0],
         speed_max_mps=speed[1],
@@ -404,7 +453,14 @@ def _aircraft(name: str, tree: Mapping[str, Any]) -> Aircraft:
         altitude_max_m=altitude[1],
         rcs_front_m2=_positive(tree, "rcs_front_m2", p),
         rcs_side_m2=_positive(tree, "rcs_side_m2", p),
+        holding_speed_min_mps=holding[0],
+        holding_speed_max_mps=holding[1],
+        max_vertical_rate_mps=_positive(tree, "max_vertical_rate_mps", p),
     )
+    if kind.max_vertical_rate_mps ** 2 > kind.speed_max_mps ** 2 - kind.speed_min_mps ** 2:
+        raise ParamError(f"{p}.max_vertical_rate_mps = {kind.max_vertical_rate_mps}: a climb at that rate and the "
+                         f"slowest speed {kind.speed_min_mps} would exceed the top speed {kind.speed_max_mps}")
+    return kind
 
 
 def _split(name: str, tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft]) -> Split:
@@ -430,6 +486,36 @@ def _start_time(text: Any) -> float:
     if moment.tzinfo is None:
         raise ParamError(f"routes.start_time_utc = {text!r}: give a time zone, e.g. a trailing Z for UTC")
     return moment.timestamp()
+
+
+def _sustained_turns(tree: Mapping[str, Any]) -> SustainedTurns:
+    p = "routes.sustained_turns"
+    rate = _positive_interval(tree, "turn_rate_dps", p)
+    turning = _positive_interval(tree, "turning_time_s", p)
+    leg = _positive_interval(tree, "holding_leg_s", p)
+    straight = _interval(tree, "straight_s", p)
+    return SustainedTurns(_number(tree, "holding_probability", p, 0.0, 1.0), *rate, *turning, *leg, *straight,
+                          attempts=_integer(tree, "attempts", p, 1))
+
+
+def _climb_dive(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft]) -> ClimbDive:
+    p = "routes.climb_dive"
+    length = _positive_interval(tree, "length_m", p)
+    level = _positive_interval(tree, "level_s", p)
+    change = _positive_interval(tree, "altitude_change_m", p)
+    for kind in aircraft.values():
+        if change[0] > (kind.altitude_max_m - kind.altitude_min_m) / 2.0:
+            raise ParamError(f"{p}.altitude_change_m = {list(change)}: the smallest change is above half the altitude "
+                             f"band of aircraft.{kind.name} ({kind.altitude_min_m}-{kind.altitude_max_m} m), so "
+                             "neither a climb nor a dive may fit")
+    rate = _positive_interval(tree, "vertical_rate_fraction", p, 1.0)
+    turn = _positive_interval(tree, "turn_duration_s", p)
+    return ClimbDive(*length, _number(tree, "min_length_m", p, 0.0), *level, *change, *rate,
+                     vertical_acceleration_fraction=_number(tree, "vertical_acceleration_fraction", p, 0.0, 1.0,
+                                                            low_open=True),
+                     turn_rate_dps=_number(tree, "turn_rate_dps", p, 0.0),
+                     turn_duration_min_s=turn[0], turn_duration_max_s=turn[1],
+                     attempts=_integer(tree, "attempts", p, 1))
 
 
 def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Radar) -> Routes:
@@ -465,6 +551,8 @@ def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Ra
                                    _integer(cj, "attempts", f"{p}.constant_jerk", 1)),
         random_turns=RandomTurns(length[0], length[1], duration[0], duration[1],
                                  _number(rt, "min_length_m", f"{p}.random_turns", 0.0)),
+        sustained_turns=_sustained_turns(_get(tree, "sustained_turns", p)),
+        climb_dive=_climb_dive(_get(tree, "climb_dive", p), aircraft),
         splits=splits,
     )
 
@@ -472,8 +560,8 @@ def _routes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Ra
 def _windows(tree: Mapping[str, Any]) -> Windows:
     p = "windows"
     frame = _get(tree, "frame", p)
-    if frame not in ("ecef", "enu"):
-        raise ParamError(f"{p}.frame = {frame!r}: must be 'ecef' or 'enu'")
+    if frame not in ("ecef", "enu", "radial"):
+        raise ParamError(f"{p}.frame = {frame!r}: must be 'ecef', 'enu' or 'radial'")
     windows = Windows(
         segment_gap_s=_positive(tree, "segment_gap_s", p),
         holdout_fraction=_number(tree, "holdout_fraction", p, 0.0, 1.0),
@@ -597,6 +685,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         confirm_n=_integer(tree, "confirm_n", p, 1),
         delete_after_s=_positive(tree, "delete_after_s", p),
         opportunity_s=radar.scan_period_s,
+        mature_first=_boolean(tree, "mature_first", p),
     )
     if tracker.confirm_m > tracker.confirm_n:
         raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")
@@ -686,7 +775,7 @@ def _sites(tree: Mapping[str, Any], p: str) -> tuple[Site, ...]:
     return tuple(sites)
 
 
-TUNING_COSTS = ("rmse", "nees")
+TUNING_COSTS = ("rmse", "nees", "rmse_in_gate")
 
 
 def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:

@@ -85,6 +85,13 @@ class Plots:
         """Rows [t, x, y, z, r] (N, 5) as the networks read plots: time, ECEF position, measured range."""
         return np.column_stack([self.time, self.position, self.range_m])
 
+    @cached_property
+    def radar_position(self) -> np.ndarray:
+        """ECEF (N, 3) metres of each plot's radar: the networks' radial window frame needs it."""
+        ids = np.array(sorted(self.radars), dtype=np.int64)
+        sites = np.array([geodesy.radar_site_ecef(self.radars[int(i)]) for i in ids]).reshape(-1, 3)
+        return sites[np.searchsorted(ids, self.radar_id)]
+
     def take(self, rows: np.ndarray) -> "Plots":
         """The plots at `rows` (indices or a boolean mask), in that order."""
         return Plots(self.plot_id[rows], self.radar_id[rows], self.scenario_id[rows], self.time[rows],

@@ -1,4 +1,4 @@
-"""Aircraft routes: the thesis's two strategies, inside the radar's coverage box.
+"""Aircraft routes: the thesis's two strategies and two of ours, inside the radar's coverage box.
 
 Routes are planned on the radar's tangent plane (east, north) with an altitude above the
 ellipsoid, as analytic functions of time, then sampled and mapped to the earth by
@@ -15,6 +15,28 @@ it is exact to well under a millimetre per second rather than a finite differenc
   rate and duration, until the drawn length (300-500 km) is flown or the route leaves
   coverage. Turn rates are capped by the aircraft's turn rate and by its acceleration
   (centripetal v*omega <= a_max).
+- Sustained turns (ours, issue 13): a straight entry leg, then minutes of turning at one
+  constant rate, then a straight exit leg, at constant speed and altitude. Either a holding
+  pattern (the ICAO Doc 8168 racetrack: 180 deg turns joined by straight legs of 1-1.5 min,
+  whole laps) or a calibration orbit (consecutive 360 deg turns). The rate is drawn in
+  `routes.sustained_turns.turn_rate_dps` (1.5-3 deg/s; ICAO's holding turns are 3 deg/s or
+  a 25 deg bank, whichever is less) and capped like the random turns, at the type's holding
+  speed (`aircraft.<type>.holding_speed_mps`, a true airspeed). With the default envelope the
+  light aircraft (50-65 m/s, a_max 6 m/s^2) and the fighter (130-180 m/s, a_max 60 m/s^2) fly
+  the whole 1.5-3 deg/s; the airliner cannot: its a_max of 3 m/s^2 (a 17 deg bank) at
+  150-200 m/s allows only 0.86-1.15 deg/s, which it flies. Its a_max is not raised for these
+  routes (a 25 deg bank, 4.6 m/s^2, would give 1.3-1.7 deg/s) because every route of a type
+  keeps one envelope, and raising it would change the existing routes.
+- Climb and dive (ours, issue 13): constant horizontal speed through gentle random turns
+  (the random turns' sequence, at most `routes.climb_dive.turn_rate_dps`), and level flight
+  alternating with climbs and dives inside the type's altitude band. Each climb or dive
+  ramps the vertical speed at a constant vertical acceleration (a share of a_max) up to a
+  rate drawn as a share of `aircraft.<type>.max_vertical_rate_mps`, holds it and ramps it
+  back down, so velocity is continuous. The turns use what the vertical acceleration leaves
+  of a_max (sqrt(a_max^2 - a_v^2), at right angles), and the horizontal speed is drawn so
+  the steepest climb stays below the top speed. A route ends after its drawn length or when
+  it leaves coverage, and is redrawn if shorter than `min_length_m` or if it leaves before
+  finishing its first climb or dive.
 """
 
 from __future__ import annotations
@@ -27,7 +49,8 @@ import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
 from pipeline import geodesy, io
-from pipeline.params import STRATEGIES, Aircraft, ConstantJerk, Params, RandomTurns, Radar, Split
+from pipeline.params import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, Params, RandomTurns, Radar, Split,
+                             SustainedTurns)
 
 DIFFERENTIATION_STEP_S = 0.05
 
@@ -153,19 +176,22 @@ def plan_constant_jerk(rng: np.random.Generator, kind: Aircraft, cfg: ConstantJe
         f"routes.constant_jerk.min_leg_m/max_leg_m or aircraft.{kind.name}.max_acceleration_mps2")
 
 
-def _turn_sequence(rng: np.random.Generator, speed: float, length: float, kind: Aircraft, cfg: RandomTurns,
-                   step_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Start times and turn rates (rad/s) of constant-rate segments covering the route length.
+def _max_turn_rate(kind: Aircraft, speed: float, acceleration: float) -> float:
+    """Fastest turn (rad/s) at `speed` within the type's turn rate and a centripetal `acceleration`."""
+    return min(np.radians(kind.max_turn_rate_dps), acceleration / speed)
+
+
+def _turn_sequence(rng: np.random.Generator, total_s: float, max_rate: float, duration_min_s: float,
+                   duration_max_s: float, step_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Start times and turn rates (rad/s, uniform within +-max_rate) of constant-rate segments covering total_s.
 
     Durations are whole sampling steps so each sample falls inside one segment.
     """
-    max_rate = min(np.radians(kind.max_turn_rate_dps), kind.max_acceleration_mps2 / speed)
-    total = length / speed
     starts, rates, elapsed = [], [], 0.0
-    while elapsed < total:
+    while elapsed < total_s:
         starts.append(elapsed)
         rates.append(rng.uniform(-max_rate, max_rate))
-        elapsed += max(step_s, round(rng.uniform(cfg.turn_duration_min_s, cfg.turn_duration_max_s) / step_s) * step_s)
+        elapsed += max(step_s, round(rng.uniform(duration_min_s, duration_max_s) / step_s) * step_s)
     return np.array(starts), np.array(rates)
 
 
@@ -200,6 +226,21 @@ def _turn_displacement(speed: float, heading: np.ndarray, rate: np.ndarray, elap
     return east, north
 
 
+def _sample_times(duration_s: float, step_s: float) -> np.ndarray:
+    """The truth sample times of a route: every step_s from 0 to its duration inclusive."""
+    return np.arange(0.0, duration_s + 1e-9, step_s)
+
+
+def _time_in_coverage(position: Callable[[np.ndarray], np.ndarray], duration_s: float, box: CoverageBox,
+                      step_s: float) -> float:
+    """Time of the last sample before the route first leaves the box (0 if it starts outside)."""
+    t = np.arange(0.0, duration_s + step_s, step_s)
+    t = t[t <= duration_s]
+    inside = box.contains(position(t))
+    samples_inside = len(t) if inside.all() else int(np.argmax(~inside))
+    return float(t[samples_inside - 1]) if samples_inside else 0.0
+
+
 def plan_random_turns(rng: np.random.Generator, kind: Aircraft, cfg: RandomTurns, box: CoverageBox,
                       step_s: float, attempts: int = 1000) -> PlannedRoute:
     """Constant speed and altitude through random turns, until the length is flown or coverage is left."""
@@ -208,22 +249,151 @@ def plan_random_turns(rng: np.random.Generator, kind: Aircraft, cfg: RandomTurns
         heading = rng.uniform(0.0, 2.0 * np.pi)
         speed = rng.uniform(kind.speed_min_mps, kind.speed_max_mps)
         length = rng.uniform(cfg.length_min_m, cfg.length_max_m)
-        starts, rates = _turn_sequence(rng, speed, length, kind, cfg, step_s)
+        starts, rates = _turn_sequence(rng, length / speed, _max_turn_rate(kind, speed, kind.max_acceleration_mps2),
+                                       cfg.turn_duration_min_s, cfg.turn_duration_max_s, step_s)
         position = _coordinated_turns(origin, heading, speed, starts, rates)
-        t = np.arange(0.0, length / speed + step_s, step_s)
-        t = t[t <= length / speed]
-        inside = box.contains(position(t))
-        samples_inside = len(t) if inside.all() else int(np.argmax(~inside))
-        end = t[samples_inside - 1] if samples_inside else 0.0
+        end = _time_in_coverage(position, length / speed, box, step_s)
         if end * speed >= cfg.min_length_m:
-            return PlannedRoute(duration_s=float(end), position=position)
+            return PlannedRoute(duration_s=end, position=position)
     raise RouteGenerationError(f"random_turns: no {kind.name} route of at least "
                                f"routes.random_turns.min_length_m = {cfg.min_length_m} m in {attempts} attempts")
 
 
+def _sustained_turn_segments(rng: np.random.Generator, cfg: SustainedTurns, rate: float, step_s: float
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """Durations (s) and rates (rad/s) of the entry leg, the laps or orbits and the exit leg.
+
+    A 180 deg turn lasts whole sampling steps, at `rate` or just below it, so the turns close
+    exactly and each sample falls inside one segment. A holding pattern's lap is turn, leg,
+    turn, leg (ICAO Doc 8168 racetrack); an orbit is one 360 deg turn. The side is random
+    (ICAO's standard holding turns right, a non-standard one left).
+    """
+    half_turn = np.ceil(np.pi / rate / step_s) * step_s
+    rate = np.pi / half_turn * rng.choice([-1.0, 1.0])
+    laps = max(1, round(rng.uniform(cfg.turning_time_min_s, cfg.turning_time_max_s) / (2.0 * half_turn)))
+    if rng.uniform() < cfg.holding_probability:
+        leg = round(rng.uniform(cfg.holding_leg_min_s, cfg.holding_leg_max_s) / step_s) * step_s
+        lap_durations, lap_rates = [half_turn, leg, half_turn, leg], [rate, 0.0, rate, 0.0]
+    else:
+        lap_durations, lap_rates = [2.0 * half_turn], [rate]
+    entry = round(rng.uniform(cfg.straight_min_s, cfg.straight_max_s) / step_s) * step_s
+    exit_leg = round(rng.uniform(cfg.straight_min_s, cfg.straight_max_s) / step_s) * step_s
+    return (np.concatenate([[entry], np.tile(lap_durations, laps), [exit_leg]]),
+            np.concatenate([[0.0], np.tile(lap_rates, laps), [0.0]]))
+
+
+def plan_sustained_turns(rng: np.random.Generator, kind: Aircraft, cfg: SustainedTurns, box: CoverageBox,
+                         step_s: float) -> PlannedRoute:
+    """A holding pattern or a calibration orbit at constant speed, altitude and turn rate; see the module docstring."""
+    for _ in range(cfg.attempts):
+        origin = _random_point(rng, box, kind)
+        heading = rng.uniform(0.0, 2.0 * np.pi)
+        speed = rng.uniform(kind.holding_speed_min_mps, kind.holding_speed_max_mps)
+        rate = min(np.radians(rng.uniform(cfg.turn_rate_min_dps, cfg.turn_rate_max_dps)),
+                   _max_turn_rate(kind, speed, kind.max_acceleration_mps2))
+        durations, rates = _sustained_turn_segments(rng, cfg, rate, step_s)
+        position = _coordinated_turns(origin, heading, speed, np.cumsum(durations) - durations, rates)
+        duration = float(durations.sum())
+        if box.contains(position(_sample_times(duration, step_s))).all():
+            return PlannedRoute(duration_s=duration, position=position)
+    raise RouteGenerationError(f"sustained_turns: no {kind.name} route inside the coverage box in "
+                               f"routes.sustained_turns.attempts = {cfg.attempts} attempts")
+
+
+def _altitude_change(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, altitude: float) -> float:
+    """Signed altitude change of the next climb or dive: up or down in proportion to the room left in
+    the type's band (params ensure one side has room for the smallest change), never beyond it."""
+    room_up, room_down = kind.altitude_max_m - altitude, altitude - kind.altitude_min_m
+    up = rng.uniform() * (room_up + room_down) < room_up
+    if (room_up if up else room_down) < cfg.altitude_change_min_m:
+        up = not up
+    change = rng.uniform(cfg.altitude_change_min_m, min(cfg.altitude_change_max_m, room_up if up else room_down))
+    return change if up else -change
+
+
+def _climbs_and_dives(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, altitude: float, total_s: float,
+                      acceleration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Start times and vertical accelerations of level flight alternating with climbs and dives.
+
+    A climb or dive ramps the vertical speed up at constant `acceleration`, holds it and ramps
+    it back to zero, so the vertical speed is continuous (no step in velocity). A change too
+    small to reach the drawn rate is flown with a lower one (a triangular profile).
+    """
+    durations, accelerations, elapsed = [], [], 0.0
+    while elapsed < total_s:
+        level = rng.uniform(cfg.level_min_s, cfg.level_max_s)
+        change = _altitude_change(rng, kind, cfg, altitude)
+        rate = rng.uniform(cfg.vertical_rate_min_fraction, cfg.vertical_rate_max_fraction) * kind.max_vertical_rate_mps
+        rate = min(rate, np.sqrt(abs(change) * acceleration))
+        ramp = rate / acceleration
+        hold = abs(change) / rate - ramp
+        durations += [level, ramp, hold, ramp]
+        accelerations += [0.0, np.sign(change) * acceleration, 0.0, -np.sign(change) * acceleration]
+        altitude += change
+        elapsed += level + 2.0 * ramp + hold
+    return np.concatenate([[0.0], np.cumsum(durations)]), np.append(accelerations, 0.0)
+
+
+def _vertical_profile(start: float, knots: np.ndarray, accelerations: np.ndarray
+                      ) -> Callable[[np.ndarray], np.ndarray]:
+    """Closed-form altitude under piecewise-constant vertical acceleration, level at `start` before knots[0]."""
+    durations = np.diff(knots)
+    rates = np.concatenate([[0.0], np.cumsum(accelerations[:-1] * durations)])
+    heights = start + np.concatenate([[0.0], np.cumsum(rates[:-1] * durations
+                                                       + 0.5 * accelerations[:-1] * durations ** 2)])
+
+    def altitude(t: np.ndarray) -> np.ndarray:
+        k = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, len(knots) - 1)
+        elapsed = t - knots[k]
+        return heights[k] + rates[k] * elapsed + 0.5 * accelerations[k] * elapsed ** 2
+
+    return altitude
+
+
+def _with_altitude(horizontal: Callable[[np.ndarray], np.ndarray], altitude: Callable[[np.ndarray], np.ndarray]
+                   ) -> Callable[[np.ndarray], np.ndarray]:
+    """A route's position: east and north from `horizontal`, its altitude from `altitude`."""
+    def position(t: np.ndarray) -> np.ndarray:
+        local = horizontal(t)
+        local[..., 2] = altitude(np.asarray(t, dtype=float))
+        return local
+
+    return position
+
+
+def climb_speed_max_mps(kind: Aircraft) -> float:
+    """Fastest horizontal speed of a climb_dive route: in its steepest climb it flies at top speed."""
+    return float(np.sqrt(kind.speed_max_mps ** 2 - kind.max_vertical_rate_mps ** 2))
+
+
+def plan_climb_dive(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, box: CoverageBox,
+                    step_s: float) -> PlannedRoute:
+    """Constant horizontal speed through gentle turns, level flight alternating with climbs and dives,
+    until the length is flown or coverage is left; see the module docstring."""
+    vertical_acceleration = cfg.vertical_acceleration_fraction * kind.max_acceleration_mps2
+    turn_acceleration = np.sqrt(kind.max_acceleration_mps2 ** 2 - vertical_acceleration ** 2)
+    for _ in range(cfg.attempts):
+        origin = _random_point(rng, box, kind)
+        heading = rng.uniform(0.0, 2.0 * np.pi)
+        speed = rng.uniform(kind.speed_min_mps, climb_speed_max_mps(kind))
+        total = rng.uniform(cfg.length_min_m, cfg.length_max_m) / speed
+        max_rate = min(np.radians(cfg.turn_rate_dps), _max_turn_rate(kind, speed, turn_acceleration))
+        starts, rates = _turn_sequence(rng, total, max_rate, cfg.turn_duration_min_s, cfg.turn_duration_max_s, step_s)
+        horizontal = _coordinated_turns(origin, heading, speed, starts, rates)
+        knots, accelerations = _climbs_and_dives(rng, kind, cfg, origin[2], total, vertical_acceleration)
+        position = _with_altitude(horizontal, _vertical_profile(origin[2], knots, accelerations))
+        end = _time_in_coverage(position, total, box, step_s)
+        # knots[4]: the end of the first climb or dive, which every route flies whole.
+        if end * speed >= cfg.min_length_m and end >= knots[4]:
+            return PlannedRoute(duration_s=end, position=position)
+    raise RouteGenerationError(f"climb_dive: no {kind.name} route of at least routes.climb_dive.min_length_m = "
+                               f"{cfg.min_length_m} m and one whole climb or dive in routes.climb_dive.attempts = "
+                               f"{cfg.attempts} attempts")
+
+
 def sample_route(planned: PlannedRoute, start_time_unix_s: float, step_s: float, radar: Radar) -> dict[str, np.ndarray]:
     """Truth columns of one route at `step_s` spacing: time, ECEF position and velocity, geodetic."""
-    t = np.arange(0.0, planned.duration_s + 1e-9, step_s)
+    t = _sample_times(planned.duration_s, step_s)
     local = planned.position(t)
     lat, lon, alt = geodesy.local_to_geodetic(local[:, 0], local[:, 1], local[:, 2], radar)
     ecef = geodesy.geodetic_to_ecef(lat, lon, alt)
@@ -258,10 +428,15 @@ def generate_route(params: Params, split: Split, strategy: str, index: int, rout
     kind = _draw_aircraft(rng, split, dict(params.aircraft))
     start = routes.start_time_unix_s + rng.uniform(0.0, routes.start_spread_s)
     box = CoverageBox.of(radar)
+    step = routes.sample_interval_s
     if strategy == "constant_jerk":
         planned = plan_constant_jerk(rng, kind, routes.constant_jerk, box)
+    elif strategy == "random_turns":
+        planned = plan_random_turns(rng, kind, routes.random_turns, box, step)
+    elif strategy == "sustained_turns":
+        planned = plan_sustained_turns(rng, kind, routes.sustained_turns, box, step)
     else:
-        planned = plan_random_turns(rng, kind, routes.random_turns, box, routes.sample_interval_s)
+        planned = plan_climb_dive(rng, kind, routes.climb_dive, box, step)
     columns = sample_route(planned, start, routes.sample_interval_s, radar)
     n = len(columns["time_unix_s"])
     columns = {"route_id": np.full(n, route_id, np.int32), "strategy": [strategy] * n,
@@ -270,7 +445,7 @@ def generate_route(params: Params, split: Split, strategy: str, index: int, rout
 
 
 def generate_split(params: Params, split: Split, progress: Callable[[int, int], None] | None = None) -> pa.Table:
-    """All routes of a split: route ids number the constant-jerk routes first, then random turns."""
+    """All routes of a split: route ids number the routes strategy by strategy, in the order of STRATEGIES."""
     jobs = [(strategy, index) for strategy in STRATEGIES for index in range(split.counts[strategy])]
     tables = []
     for route_id, (strategy, index) in enumerate(jobs):

@@ -15,8 +15,17 @@ The `frame` choice says in which axes the centred positions are expressed:
 - `ecef`: ECEF differences, as the thesis does. Centring by subtraction does not depend on
   the routes lying in the positive ECEF octant (the thesis's caveat), but the same
   manoeuvre looks different at different places on Earth.
-- `enu`: east-north-up axes at the window's origin, so the same manoeuvre gives the same
-  window wherever the radar stands.
+- `enu`: east-north-up axes at the window's origin. The same flight relative to north gives
+  the same window anywhere, but the same flight relative to the radar does not quite: north at
+  the aircraft turns from north at the radar by the meridian convergence (3 degrees 200 km east
+  of a radar at 60 degrees latitude, the opposite way in the southern hemisphere, none at the
+  equator).
+- `radial` (default, ours): cross-range, down-range and up axes at the window's origin
+  (`geodesy.radial_rotations`): down-range is the horizontal direction away from the radar. A
+  window is then a function of the radar's own measurements only, so the same flight relative
+  to the radar gives the same window at any site, and the radar's error ellipse (narrow in
+  range, wide in azimuth) lies along the axes wherever the aircraft is. It needs the radar's
+  position: `origin` takes it.
 """
 
 from __future__ import annotations
@@ -28,15 +37,16 @@ import numpy as np
 
 from pipeline import geodesy
 
-FRAMES = ("ecef", "enu")
+FRAMES = ("ecef", "enu", "radial")
 PLOT_FEATURES = ("t", "x", "y", "z", "r")
 STATE_FEATURES = ("t", "dt", "x", "y", "z", "r")
 
 
 @dataclass(frozen=True)
 class WindowScaler:
-    """Centre-and-scale for one window layout. `origin` rows are (t0, x0, y0, z0, r0): time, ECEF
-    position and range of the window's first input sample (see `origin`)."""
+    """Centre-and-scale for one window layout. `origin` rows are (t0, x0, y0, z0, r0, sx, sy, sz):
+    time, ECEF position and range of the window's first input sample and the ECEF position of the
+    radar that measured it (see `origin`)."""
 
     features: tuple[str, ...]
     scale: tuple[float, ...]
@@ -53,14 +63,24 @@ class WindowScaler:
     def _position(self) -> list[int]:
         return [self.features.index(axis) for axis in ("x", "y", "z")]
 
-    def origin(self, windows: np.ndarray) -> np.ndarray:
-        """(t0, x0, y0, z0, r0) of each window's first sample: what it is centred on."""
-        return np.asarray(windows)[:, 0, [self.features.index(name) for name in ("t", "x", "y", "z", "r")]]
+    def origin(self, windows: np.ndarray, radar_ecef: np.ndarray | None = None) -> np.ndarray:
+        """(t0, x0, y0, z0, r0, sx, sy, sz) of each window (N x L x F): its first sample, what it is
+        centred on, and the radar's ECEF position ((3,) or (N, 3) metres; NaN when not given).
+
+        Raises ValueError in the `radial` frame without the radar's position."""
+        first = np.asarray(windows)[:, 0, [self.features.index(name) for name in ("t", "x", "y", "z", "r")]]
+        if radar_ecef is None:
+            if self.frame == "radial":
+                raise ValueError("the radial window frame needs the radar's position (radar_ecef)")
+            radar_ecef = np.full(3, np.nan)
+        return np.column_stack([first, np.broadcast_to(np.asarray(radar_ecef, dtype=float), (len(first), 3))])
 
     def _rotations(self, origin: np.ndarray) -> np.ndarray | None:
-        """Per-window ECEF -> ENU rotations (N x 3 x 3) at the origin, or None in the ECEF frame."""
+        """Per-window ECEF -> frame rotations (N x 3 x 3) at the origin, or None in the ECEF frame."""
         if self.frame == "ecef":
             return None
+        if self.frame == "radial":
+            return geodesy.radial_rotations(origin[:, 1:4], origin[:, 5:8])
         lat, lon, _ = geodesy.ecef_to_geodetic(origin[:, 1:4])
         return geodesy.enu_rotations(lat, lon)
 

@@ -92,11 +92,18 @@ def trajectory_of(route: dict[str, np.ndarray]) -> CubicHermiteSpline:
 
 def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
                       ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Plots (target and false, unsorted, without plot ids) and per-scan truth of one route."""
+    """Plots (target and false, unsorted, without plot ids) and per-scan truth of one route.
+
+    Detections, measurement noise and clutter each draw from their own stream, and every beam
+    crossing gets its noise whether detected or not: a plot's noise and the clutter never depend
+    on which other plots were detected. So the same flight past a radar at another site, where
+    the local earth curvature hides one more plot below the horizon, differs by that plot only.
+    """
     radar = params.radar
     route_id = int(route["route_id"][0])
     kind = params.aircraft[str(route["aircraft_type"][0])]
-    rng = np.random.default_rng([params.simulate_seed, split.seed, route_id])
+    detection_rng, noise_rng, clutter_rng = (np.random.default_rng([params.simulate_seed, split.seed, route_id, stream])
+                                             for stream in range(3))
     trajectory = trajectory_of(route)
     start, end = float(route["time_unix_s"][0]), float(route["time_unix_s"][-1])
 
@@ -106,7 +113,7 @@ def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
     line_of_sight = true_ecef - geodesy.radar_site_ecef(radar)
     snr = radar_model.mean_snr(true_range, radar_model.mean_rcs(trajectory(crossing, 1), line_of_sight, kind), radar)
     covered = radar_model.in_coverage(true_range, true_altitude, geodesy.elevation_deg(true_ecef, radar), radar)
-    detected = radar_model.detect(rng, snr, radar) & covered
+    detected = radar_model.detect(detection_rng, snr, radar) & covered
     truth = {
         "scenario_id": np.full(len(scan), route_id, np.int32), "target_id": np.full(len(scan), route_id, np.int32),
         "scan": scan, "time_unix_s": crossing,
@@ -116,10 +123,10 @@ def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
             snr, radar), 0.0), "detected": detected,
     }
 
-    noisy = radar_model.add_measurement_noise(rng, true_range[detected], true_azimuth[detected],
-                                              true_altitude[detected], radar)
+    noisy = [values[detected] for values in radar_model.add_measurement_noise(
+        noise_rng, true_range, true_azimuth, true_altitude, radar)]
     false_scan, false_time, *false_measured = radar_model.false_plot_draws(
-        rng, radar_model.scan_numbers(start, end, radar), radar)
+        clutter_rng, radar_model.scan_numbers(start, end, radar), radar)
     in_span = (false_time >= start) & (false_time <= end)
     n_target, n_false = int(detected.sum()), int(in_span.sum())
     all_scan = np.concatenate([scan[detected], false_scan[in_span]])

@@ -3,9 +3,10 @@
 Input is either Parquet plots in the schema `simulate` writes (truth columns optional) with
 a radar description, or ASTERIX CAT048 plots with CAT034 north markers; either becomes one plot
 table (`pipeline.plot_table`), each plot with its radar's position and measurement covariance,
-so a recording may hold plots of several radars, anywhere on Earth. For a radar far from where
-the networks were trained, train with `windows.frame: enu`: ECEF windows of the same manoeuvre
-look different elsewhere, ENU windows do not. The method loads only what it needs
+so a recording may hold plots of several radars, anywhere on Earth. The networks' default
+`radial` window frame (`pipeline.scaling`) sees a flight relative to its radar, the same at any
+site; networks trained with `windows.frame: ecef` (the thesis's) do not carry to a radar far from
+the training site. The method loads only what it needs
 (`pipeline.tracker.loading`): a classical one only the tuned filters.
 
 Each scenario of the recording (all of it when the plots have no scenario id) is tracked on its

@@ -115,7 +115,7 @@ def _holdout_metrics(kind: str, model: LoadedModel, params: Params, windows_dir:
         return (model_eval.evaluate_autoencoder(errors, labels, threshold, rejected),
                 {"threshold": threshold, "false_windows_rejected": rejected})
     holdout = io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA)
-    plots = model_eval.holdout_plots(holdout)
+    plots = model_eval.holdout_plots(holdout, params.radar)
     if kind == "filter":
         return model_eval.evaluate_filter(model, plots, params.radar, kalman), {}
     return model_eval.evaluate_predictor(model, plots, kalman), {}

@@ -36,6 +36,7 @@ class TargetPlots:
     range_m: np.ndarray        # measured slant range
     true_position: np.ndarray  # truth at the plot time (N x 3)
     true_range_m: np.ndarray   # exact distance from the radar to the truth
+    radar_position: np.ndarray  # ECEF of the radar that measured the plot (N x 3), for the radial window frame
 
     def take(self, mask: np.ndarray) -> "TargetPlots":
         return TargetPlots(*(getattr(self, name)[mask] for name in self.__dataclass_fields__))
@@ -62,6 +63,7 @@ def target_plots(plots: pa.Table, radar: Radar, gap_s: float, source: str) -> Ta
         if missing.any():
             raise InputError(f"{source}: column '{name}' is missing for {int(missing.sum())} target plots "
                              f"(first plot_id {int(target.column('plot_id')[int(np.argmax(missing))].as_py())})")
+    site = geodesy.radar_site_ecef(radar)
     scenario = target.column("scenario_id").to_numpy()
     time = target.column("time_unix_s").to_numpy()
     order = np.lexsort((time, scenario))
@@ -76,7 +78,8 @@ def target_plots(plots: pa.Table, radar: Radar, gap_s: float, source: str) -> Ta
         position=_columns(target, ("x_ecef_m", "y_ecef_m", "z_ecef_m"))[order],
         range_m=target.column("range_m").to_numpy()[order],
         true_position=true_position,
-        true_range_m=np.linalg.norm(true_position - geodesy.radar_site_ecef(radar), axis=1),
+        true_range_m=np.linalg.norm(true_position - site, axis=1),
+        radar_position=np.tile(site, (len(time), 1)),
     )
 
 

@@ -9,7 +9,7 @@ from typing import Any, Callable, Mapping
 
 import pytest
 
-from pipeline.params import Params, load_params_tree, parse_params
+from pipeline.params import STRATEGIES, Params, load_params_tree, parse_params
 from tests.servers import repro_tiny_pipeline
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
@@ -30,7 +30,7 @@ def make_params() -> Callable[..., Params]:
     def make(routes_per_strategy: int = 3, changes: Mapping[str, Any] | None = None) -> Params:
         tree = copy.deepcopy(_DEFAULT_TREE)
         for split in tree["routes"]["splits"].values():
-            split["constant_jerk"] = split["random_turns"] = routes_per_strategy
+            split.update(dict.fromkeys(STRATEGIES, routes_per_strategy))
         for dotted, value in (changes or {}).items():
             *parents, key = dotted.split(".")
             node = tree

@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from pipeline.params import load_params_tree
+from pipeline.params import STRATEGIES, load_params_tree
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 
@@ -26,8 +26,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     stopping, so a run's length is its `epochs`): the whole pipeline in about a minute."""
     tree = copy.deepcopy(default_params_tree())
     for split in tree["routes"]["splits"].values():
-        split["constant_jerk"] = routes_per_strategy
-        split["random_turns"] = routes_per_strategy
+        split.update(dict.fromkeys(STRATEGIES, routes_per_strategy))
     tree["report"]["example_routes"] = 1
     tree["windows"]["holdout_fraction"] = 0.25  # a handful of segments: 5 % would hold out none
     for network in ("filter", "predictor", "autoencoder"):

@@ -228,13 +228,42 @@ def test_batched_filters_equal_filterpy_step_by_step(radar, kind):
     and ends with filterpy's mode probabilities."""
     rows = realistic_rows(radar)
     kind_settings = settings(kind, {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}[kind], velocity_std_mps=300.0)
-    x, P, last = batch_filters.filter_sequences(kind_settings, *rows)
+    filtered = batch_filters.filter_sequences(kind_settings, *rows)
+    x, P, last = filtered.position, filtered.covariance, filtered.last
     expected_x, expected_P, expected_probabilities = filterpy_reference(kind_settings, *rows)
     valid = rows[3]
     assert np.isnan(x[~valid]).all() and np.isnan(P[~valid]).all()
     np.testing.assert_allclose(x[valid], expected_x[valid], rtol=1e-12, atol=1e-6)
     np.testing.assert_allclose(P[valid], expected_P[valid], rtol=1e-9, atol=1e-6)
     np.testing.assert_allclose(last.mu, expected_probabilities, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", classical_filters.KINDS)
+def test_innovation_distance_is_the_nis_the_tracker_gates_with(radar, kind):
+    """`filter_sequences`'s innovation distance at each plot is d' S^-1 d of the plot against
+    filterpy's prediction to its time (`predicted_gaussian`, the tracker's gate) with S = P + R;
+    NaN where the row restarts or is padding."""
+    times, positions, covariances, valid, restart = rows = realistic_rows(radar)
+    kind_settings = settings(kind, {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}[kind], velocity_std_mps=300.0)
+    distance = batch_filters.filter_sequences(kind_settings, *rows).innovation_distance
+    measured = kind_settings.measured
+    expected = np.full(times.shape, np.nan)
+    for row in range(times.shape[0]):
+        estimator, last = None, None
+        for step in np.flatnonzero(valid[row]):
+            if restart[row, step]:
+                estimator = classical_filters.start_filter(kind_settings, positions[row, step], covariances[row, step])
+            else:
+                state, covariance = classical_filters.predicted_gaussian(estimator, kind_settings,
+                                                                         times[row, step] - last)
+                d = positions[row, step] - state[measured]
+                S = covariance[np.ix_(measured, measured)] + covariances[row, step]
+                expected[row, step] = d @ np.linalg.solve(S, d)
+                classical_filters.advance(estimator, kind_settings, times[row, step] - last)
+                classical_filters.update(estimator, positions[row, step], covariances[row, step])
+            last = times[row, step]
+    assert np.isnan(distance[np.isnan(expected)]).all()
+    np.testing.assert_allclose(distance[~np.isnan(expected)], expected[~np.isnan(expected)], rtol=1e-8)
 
 
 @pytest.mark.parametrize("kind", classical_filters.KINDS)
@@ -260,8 +289,8 @@ def test_gating_prediction_is_the_filters_own_prediction(radar, kind):
     np.testing.assert_allclose(state, mean, rtol=1e-12)
     np.testing.assert_allclose(covariance, spread, rtol=1e-9, atol=1e-6)
 
-    _, _, batch = batch_filters.filter_sequences(kind_settings, times[:1, :8], positions[:1, :8], covariances[:1, :8],
-                                                 np.ones((1, 8), bool), np.eye(1, 8, dtype=bool))
+    batch = batch_filters.filter_sequences(kind_settings, times[:1, :8], positions[:1, :8], covariances[:1, :8],
+                                           np.ones((1, 8), bool), np.eye(1, 8, dtype=bool)).last
     measured = kind_settings.measured
     x, P = batch_filters.predict_positions(kind_settings, batch, np.array([9.0]))
     np.testing.assert_allclose(x[0], state[measured], rtol=1e-12)
@@ -302,7 +331,8 @@ def test_target_sequences_restart_after_gaps_and_routes_and_skip_the_burn_in(rad
             rows.append((scenario, T0 + time, (x, point[1], point[2]), (x + 40.0, point[1], point[2])))
             expected[x] = (time in restarts, since >= 2)
     rows += [(1, T0 + 3.0, tuple(point + 5e4), None), (2, T0 + 20.0, tuple(point - 5e4), None)]
-    material = tuning.target_sequences(plots_table(rows[::-1]), radar, restart_gap_s=24.0, burn_in_updates=2)
+    material = tuning.target_sequences(plots_table(rows[::-1]), radar, restart_gap_s=24.0, burn_in_updates=2,
+                                       gate_probability=0.995)
 
     valid = material.valid
     assert valid.sum() == len(expected) == 11
@@ -333,22 +363,26 @@ def material(radar) -> tuning.Sequences:
         rows += [(index // 2, t + 3600.0 * (index % 2), tuple(p), tuple(e)) for t, p, e in zip(times, plots, truth)]
     clutter = to_ecef(rng.uniform([-1e5, -1e5, 1000.0], [1e5, 1e5, 12000.0], (30, 3)), radar)
     rows += [(index % 4, T0 + rng.uniform(0.0, 100.0), tuple(p), None) for index, p in enumerate(clutter)]
-    return tuning.target_sequences(plots_table(rows), radar, restart_gap_s=24.0, burn_in_updates=3)
+    return tuning.target_sequences(plots_table(rows), radar, restart_gap_s=24.0, burn_in_updates=3, gate_probability=0.995)
 
 
-@pytest.mark.parametrize("cost, start_noise", [("rmse", 200.0), ("nees", 0.05)])
+@pytest.mark.parametrize("cost, start_noise", [("rmse", 200.0), ("nees", 0.05), ("rmse_in_gate", 0.05)])
 def test_tuning_lowers_its_cost_from_a_bad_start(material, cost, start_noise):
     """CV tuning on a few random flights: from 200 m/s^2 of process noise (far too much for airliners:
     the estimate follows the plots' noise) to a lower RMSE, and from 0.05 m/s^2 (far too little: the
-    filter lags the turns and is overconfident) to an ANEES nearer 3 (cost |ln(ANEES / 3)|)."""
+    filter lags the turns and is overconfident) to an ANEES nearer 3 (cost |ln(ANEES / 3)|), or to
+    a filter whose gate keeps the target's plots as often as it promises (`rmse_in_gate`)."""
     start = settings("cv", (start_noise,), velocity_std_mps=400.0)
     tuned, before, after, evaluations = tuning.tune(start, material, cost, 200)
     assert after.cost(cost) < before.cost(cost)
     assert after.cost(cost) == pytest.approx(tuning.assess(tuned, material).cost(cost))
     if cost == "rmse":
         assert tuned.noise_std[0] < start_noise and after.rmse_m < after.plot_rmse_m
-    else:
+    elif cost == "nees":
         assert tuned.noise_std[0] > start_noise and after.anees_bounds[0] < after.anees < after.anees_bounds[1]
+    else:
+        assert before.gate_misses > 5 * before.gate_allowance
+        assert tuned.noise_std[0] > start_noise and after.gate_misses < 2 * after.gate_allowance
     assert after.samples == before.samples == material.scored.sum()
     assert evaluations > 1
 
@@ -368,10 +402,10 @@ def test_assessment_rejects_a_covariance_that_is_not_positive_definite(material,
     filter_sequences = batch_filters.filter_sequences
 
     def spoilt(*args):
-        x, P, state = filter_sequences(*args)
+        filtered = filter_sequences(*args)
         row, step = np.argwhere(material.scored)[len(np.argwhere(material.scored)) // 2]
-        P[row, step] = np.diag([1e4, -1.0, 1e4]) if bad == "negative" else np.nan
-        return x, P, state
+        filtered.covariance[row, step] = np.diag([1e4, -1.0, 1e4]) if bad == "negative" else np.nan
+        return filtered
 
     monkeypatch.setattr(batch_filters, "filter_sequences", spoilt)
     with pytest.raises(tuning.TuningError, match=r"cv: a position covariance is not positive definite"):

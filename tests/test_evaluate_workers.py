@@ -1,7 +1,7 @@
 """The evaluate stage gives the same reports whatever the number of worker processes.
 
-A tiny test split (two routes per strategy, each scenario cut to its first 15 minutes), tiny
-trained networks (tests/tracker_fixtures.py) and the classical filters at their start values,
+A tiny test split (two routes of each of the thesis's two strategies, each scenario cut to its
+first 15 minutes), tiny trained networks (tests/tracker_fixtures.py) and the classical filters at their start values,
 evaluated with one run of each kind (network gates, the young-track radius, classical
 nearest and global nearest neighbour, one under the m_of_n management rule) and both references: once in the stage's process, once
 over two worker processes. Everything written must be equal byte for byte, except the speed
@@ -24,6 +24,8 @@ from tests import tracker_fixtures as tf
 # Third-party deprecation notices (Lightning's pytree use), not ours.
 pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.* is deprecated")
 
+TEST_SPLIT = {"routes.splits.test.constant_jerk": 2, "routes.splits.test.random_turns": 2,
+              "routes.splits.test.sustained_turns": 0, "routes.splits.test.climb_dive": 0}
 KEPT_S = 900.0  # of each scenario: enough for tracks to confirm, and seconds to evaluate
 RUNS = [{"method": "via", "window_m": 4000.0}, {"method": "mia", "window_m": 4000.0},
         {"method": "ae", "window_m": 5000.0}, {"method": "radius", "window_m": 4000.0},
@@ -34,7 +36,7 @@ RUNS = [{"method": "via", "window_m": 4000.0}, {"method": "mia", "window_m": 400
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
     """Folders of simulated data, routes and models for a tiny test split."""
-    params = tf.make_params({"routes.splits.test.constant_jerk": 2, "routes.splits.test.random_turns": 2})
+    params = tf.make_params(TEST_SPLIT)
     folder = tmp_path_factory.mktemp("evaluate")
     split = params.routes.split(params.evaluate.split)
     route_table = routes.generate_split(params, split)
@@ -57,8 +59,7 @@ def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
 
 
 def evaluate(inputs: tuple[Path, Path, Path], workers: int, reports: Path) -> Path:
-    params = tf.make_params({"routes.splits.test.constant_jerk": 2, "routes.splits.test.random_turns": 2,
-                             "evaluate.runs": RUNS, "evaluate.example_scenarios": 2,
+    params = tf.make_params({**TEST_SPLIT, "evaluate.runs": RUNS, "evaluate.example_scenarios": 2,
                              "evaluate.example_run": "via_4000", "compute.workers": workers})
     run_evaluate(params, *inputs, reports)
     return reports

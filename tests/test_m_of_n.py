@@ -131,7 +131,8 @@ def test_evaluate_scores_each_run_under_its_own_rule():
     """A run naming m_of_n is tracked and scored under MOfN; the others and the references under the
     tracker's rule (thesis by default)."""
     tree = tf.params_tree()
-    tree["evaluate"]["runs"].append({"method": "imm", "window_m": 4000.0, "management": "m_of_n"})
+    tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
+                                {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     rules = run_management(parse_params(tree))
     assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
     assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)

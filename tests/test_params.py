@@ -45,6 +45,19 @@ def test_default_params_load():
     ("radar.range_min_m", 500e3, ["radar.range_min_m", "500000.0"]),
     ("routes.start_time_utc", "tomorrow", ["routes.start_time_utc", "tomorrow"]),
     ("aircraft.fighter.altitude_m", [1000.0, 16000.0], ["aircraft.fighter.altitude_m", "16000.0"]),
+    # the sustained_turns and climb_dive strategies and the envelope keys only they read
+    ("routes.splits.train.climb_dive", -1, ["routes.splits.train.climb_dive", "-1"]),
+    ("routes.sustained_turns.turn_rate_dps", [3.0, 1.5], ["routes.sustained_turns.turn_rate_dps", "above"]),
+    ("routes.sustained_turns.turn_rate_dps", [0.0, 3.0], ["routes.sustained_turns.turn_rate_dps", "(0, inf]"]),
+    ("routes.sustained_turns.holding_probability", 1.5, ["routes.sustained_turns.holding_probability", "1.5"]),
+    ("routes.sustained_turns.straight_s", [-60.0, 300.0], ["routes.sustained_turns.straight_s", "-60.0"]),
+    ("routes.climb_dive.vertical_rate_fraction", [0.5, 1.5], ["routes.climb_dive.vertical_rate_fraction", "1.5"]),
+    ("routes.climb_dive.vertical_acceleration_fraction", 0.0, ["routes.climb_dive.vertical_acceleration_fraction"]),
+    ("routes.climb_dive.altitude_change_m", [2000.0, 4000.0], ["routes.climb_dive.altitude_change_m",
+                                                               "aircraft.light"]),
+    ("routes.climb_dive.turn_rate_dps", -1.0, ["routes.climb_dive.turn_rate_dps", "-1.0"]),
+    ("aircraft.light.max_vertical_rate_mps", 80.0, ["aircraft.light.max_vertical_rate_mps", "80.0"]),
+    ("aircraft.airliner.holding_speed_mps", [0.0, 120.0], ["aircraft.airliner.holding_speed_mps", "positive"]),
     # impossible training schedules
     ("training.predictor.early_stopping_min_improvement", -0.01,
      ["training.predictor.early_stopping_min_improvement", "-0.01"]),
@@ -67,7 +80,7 @@ def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
 
 
 @pytest.mark.parametrize("section, key", [("radar", "sigma_range_m"), ("routes", "sample_interval_s"),
-                                          ("simulate", "seed")])
+                                          ("simulate", "seed"), ("routes", "climb_dive")])
 def test_missing_key_is_named(params_tree, section, key):
     """A missing key raises ParamError naming its full path."""
     del params_tree[section][key]
@@ -157,10 +170,10 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
     naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
     that does not exist is named with its run."""
-    default_names = [run.name for run in parse_params(params_tree).evaluate.runs]
-    params_tree["evaluate"]["runs"].append({"method": "imm", "window_m": 4000.0, "management": "m_of_n"})
+    params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
+                                       {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs
-    assert [run.name for run in runs] == default_names + ["imm_4000_m_of_n"]
+    assert [run.name for run in runs] == ["via_4000", "imm_4000", "imm_4000_m_of_n"]
     assert runs[-1].management == "m_of_n" and all(run.management is None for run in runs[:-1])
     assert registry.method_of_run("imm_4000_m_of_n").name == "imm"
     assert registry.method_of_run("imm_gnn_4000_thesis").name == "imm_gnn"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline import geodesy, routes
+from pipeline.params import STRATEGIES
 
 ROUTES_PER_STRATEGY = 8
 # geodesy.local_to_geodetic maps the planning plane to the earth with under 0.3 % distortion of
@@ -51,19 +52,35 @@ def planar_length(route):
     return float(np.hypot(np.diff(route["east_m"]), np.diff(route["north_m"])).sum())
 
 
-def random_turn_routes(train_routes):
-    chosen = [(kind, route) for kind, route in train_routes if route["strategy"][0] == "random_turns"]
+def routes_of(train_routes, strategy):
+    chosen = [(kind, route) for kind, route in train_routes if route["strategy"][0] == strategy]
     assert len(chosen) == ROUTES_PER_STRATEGY
     return chosen
 
 
-def test_split_holds_the_requested_routes_numbered_constant_jerk_first(params, train_table):
-    """A split has counts[strategy] routes per strategy, ids 0..n-1 with the constant-jerk ones first."""
+def random_turn_routes(train_routes):
+    return routes_of(train_routes, "random_turns")
+
+
+def speed_interval(kind, strategy):
+    """The speeds a strategy flies a type at: sustained turns at the type's holding speeds."""
+    if strategy == "sustained_turns":
+        return kind.holding_speed_min_mps, kind.holding_speed_max_mps
+    return kind.speed_min_mps, kind.speed_max_mps
+
+
+def headings_deg(route):
+    """Unwrapped heading (deg from north) of each 1 s step on the planning plane."""
+    return np.degrees(np.unwrap(np.arctan2(np.diff(route["east_m"]), np.diff(route["north_m"]))))
+
+
+def test_split_holds_the_requested_routes_numbered_strategy_by_strategy(params, train_table):
+    """A split has counts[strategy] routes per strategy, ids 0..n-1 in the order of STRATEGIES."""
     route_ids = np.unique(train_table.column("route_id").to_numpy())
-    assert route_ids.tolist() == list(range(2 * ROUTES_PER_STRATEGY))
+    assert route_ids.tolist() == list(range(len(STRATEGIES) * ROUTES_PER_STRATEGY))
     split_routes = per_route(train_table)
-    assert [route["strategy"][0] for route in split_routes] == (["constant_jerk"] * ROUTES_PER_STRATEGY
-                                                               + ["random_turns"] * ROUTES_PER_STRATEGY)
+    assert [route["strategy"][0] for route in split_routes] == [
+        strategy for strategy in STRATEGIES for _ in range(ROUTES_PER_STRATEGY)]
     assert {route["aircraft_type"][0] for route in split_routes} <= set(params.routes.split("train").aircraft_mix)
 
 
@@ -87,12 +104,14 @@ def test_geodetic_columns_describe_the_ecef_position(train_routes):
 
 
 def test_speed_and_acceleration_stay_in_the_envelope(params, train_routes):
-    """ECEF speed is within the type's speed interval and the 1 s velocity change within its max acceleration."""
+    """ECEF speed is within the type's speed interval (holding speeds for sustained turns) and the 1 s
+    velocity change within its max acceleration, for every strategy."""
     step = params.routes.sample_interval_s
     for kind, route in train_routes:
         speed = np.linalg.norm(velocity(route), axis=1)
-        assert speed.min() >= kind.speed_min_mps * (1.0 - PROJECTION_TOLERANCE), kind.name
-        assert speed.max() <= kind.speed_max_mps * (1.0 + PROJECTION_TOLERANCE), kind.name
+        low, high = speed_interval(kind, route["strategy"][0])
+        assert speed.min() >= low * (1.0 - PROJECTION_TOLERANCE), kind.name
+        assert speed.max() <= high * (1.0 + PROJECTION_TOLERANCE), kind.name
         acceleration = np.linalg.norm(np.diff(velocity(route), axis=0), axis=1) / step
         assert acceleration.max() <= kind.max_acceleration_mps2 * 1.02 + 0.05, kind.name
 
@@ -122,6 +141,45 @@ def test_random_turns_are_300_to_500_km_unless_they_leave_coverage(params, train
             full_length += 1
         assert length <= cfg.length_max_m
     assert full_length > 0  # the rule was exercised on at least one route that stayed in coverage
+
+
+def test_sustained_turns_turn_at_one_rate_in_the_interval_or_at_the_envelope(params, train_routes):
+    """Holding patterns and orbits: constant speed and altitude; every turning step at one rate, drawn in
+    turn_rate_dps or capped where the type cannot fly it (v * omega <= max_acceleration); whole
+    360 deg laps or orbits; both kinds in the split."""
+    cfg, step = params.routes.sustained_turns, params.routes.sample_interval_s
+    kinds = set()
+    for kind, route in routes_of(train_routes, "sustained_turns"):
+        speed = np.linalg.norm(velocity(route), axis=1)
+        assert np.ptp(speed) <= PROJECTION_TOLERANCE * speed.mean()
+        assert np.ptp(route["altitude_m"]) < 1e-6
+        heading = headings_deg(route)
+        rate = np.abs(np.diff(heading)) / step
+        turning = rate > 0.75 * rate.max()     # a step half in a turn turns at half the rate
+        assert np.ptp(rate[turning]) < 1e-6 * rate.max()
+        speed_on_plane = np.hypot(np.diff(route["east_m"]), np.diff(route["north_m"])).max() / step
+        cap = min(kind.max_turn_rate_dps, np.degrees(kind.max_acceleration_mps2 / speed_on_plane))
+        # A 180 deg turn lasts whole steps: the rate is lowered by at most one step in the turn (< 2 %).
+        assert min(cfg.turn_rate_min_dps, cap) * 0.98 <= rate.max() <= min(cfg.turn_rate_max_dps, cap) * 1.001
+        laps = abs(heading[-1] - heading[0]) / 360.0
+        assert laps >= 1.0 - 1e-9 and abs(laps - round(laps)) < 1e-6, laps
+        straight_between_turns = np.flatnonzero(turning)
+        kinds.add("holding" if np.any(np.diff(straight_between_turns) > 2) else "orbit")
+    assert kinds == {"holding", "orbit"}
+
+
+def test_climb_dive_routes_climb_and_dive_smoothly_within_the_vertical_rate(params, train_routes):
+    """Climb-dive routes change altitude by at least altitude_change_m[0], at vertical speeds up to
+    vertical_rate_fraction[1] x the type's max_vertical_rate_mps, with a continuous vertical speed whose
+    changes stay within vertical_acceleration_fraction x max_acceleration."""
+    cfg, step = params.routes.climb_dive, params.routes.sample_interval_s
+    for kind, route in routes_of(train_routes, "climb_dive"):
+        altitude = route["altitude_m"]
+        assert np.ptp(altitude) >= cfg.altitude_change_min_m - 1e-6, kind.name
+        vertical_speed = np.diff(altitude) / step
+        assert np.abs(vertical_speed).max() <= cfg.vertical_rate_max_fraction * kind.max_vertical_rate_mps + 1e-6
+        vertical_acceleration = np.abs(np.diff(vertical_speed)) / step
+        assert vertical_acceleration.max() <= cfg.vertical_acceleration_fraction * kind.max_acceleration_mps2 + 1e-6
 
 
 def test_truth_is_sampled_at_the_sample_interval(params, train_routes):
@@ -165,7 +223,7 @@ def test_a_route_does_not_change_with_the_counts_of_its_split(make_params):
     few, more = make_params(2), make_params(4)
     few_table = routes.generate_split(few, few.routes.split("test"))
     more_table = routes.generate_split(more, more.routes.split("test"))
-    for strategy in ("constant_jerk", "random_turns"):
+    for strategy in STRATEGIES:
         few_routes = [r for r in per_route(few_table) if r["strategy"][0] == strategy]
         more_routes = [r for r in per_route(more_table) if r["strategy"][0] == strategy]
         assert len(few_routes) == 2 and len(more_routes) == 4
@@ -178,3 +236,14 @@ def test_a_route_does_not_change_with_the_counts_of_its_split(make_params):
     alone = routes.generate_route(few, few.routes.split("test"), "random_turns", 1, route_id=99)
     assert alone.drop_columns(["route_id"]).equals(
         more_table.filter(more_table.column("route_id").to_numpy() == 5).drop_columns(["route_id"]))
+
+
+def test_the_thesis_strategies_do_not_change_with_the_newer_ones(make_params):
+    """Adding sustained_turns and climb_dive routes to a split leaves its constant-jerk and random-turn
+    routes (ids included) as they were: new strategies take the next indices in STRATEGIES."""
+    without = make_params(2, {f"routes.splits.test.{strategy}": 0 for strategy in STRATEGIES[2:]})
+    with_new = make_params(2)
+    old = routes.generate_split(without, without.routes.split("test"))
+    new = routes.generate_split(with_new, with_new.routes.split("test"))
+    assert new.num_rows > old.num_rows
+    assert new.slice(0, old.num_rows).equals(old)

@@ -64,9 +64,9 @@ def raw_windows(layout, steps):
     return plots if layout == "plots" else as_states(plots)
 
 
-def origin_of(raw, scaler):
-    """(t0, x0, y0, z0, r0) of each window's first sample."""
-    return scaler.origin(raw)
+def origin_of(raw, scaler, sites=SITES):
+    """(t0, x0, y0, z0, r0) of each window's first sample and the ECEF of its radar (one site per window)."""
+    return scaler.origin(raw, np.array([geodesy.site_ecef(*site) for site in sites]))
 
 
 def test_scale_vectors_follow_the_thesis():
@@ -142,19 +142,25 @@ def test_default_scale_vectors_are_the_thesis(make_params):
     assert 2.0 < np.abs(scaled[:, :, 1:4]).max() < 5.0
 
 
-def test_enu_frame_gives_the_same_window_for_the_same_manoeuvre_at_two_radars():
-    """A turn flown over a Finnish and over an Australian radar scales alike in ENU, not in ECEF."""
+def test_local_frames_give_the_same_window_for_the_same_manoeuvre_at_two_radars():
+    """A turn flown over a Finnish and over an Australian radar scales alike in ENU and radial axes, not in ECEF."""
     # The ENU axes are those at the window's first plot. The turn starts straight above each
     # radar, so those axes are the radar's. A turn laid out in the radar's axes but starting
     # 100 km east would not be the same manoeuvre at both sites: local north there is turned
-    # from the radar's by the meridian convergence (1.6 deg at 60 N, 0.6 deg at 34 S).
-    finland = coordinated_turn((60.3, 24.9, 60.0))
-    australia = coordinated_turn((-33.9, 151.2, 20.0), start_s=T0 + 3600.0)
+    # from the radar's by the meridian convergence (1.6 deg at 60 N, 0.6 deg at 34 S); in the
+    # radial frame it would be (tests/test_site_independence.py). Straight above the radar the
+    # radial frame's down-range is north, so here it is ENU but for its up, the ellipsoid's normal
+    # through the point rather than the geodetic vertical (at most 0.1 m apart across this window: 2.5e-5).
+    sites = {"finland": (60.3, 24.9, 60.0), "australia": (-33.9, 151.2, 20.0)}
+    windows = {"finland": coordinated_turn(sites["finland"]),
+               "australia": coordinated_turn(sites["australia"], start_s=T0 + 3600.0)}
     scaled = {}
     for frame in scaling.FRAMES:
         scaler = scaling.plot_scaler(DT_MAX_S, MAX_DIFF_M, R_MAX_M, 10, frame, False)
-        scaled[frame] = [scaler.transform(raw, origin_of(raw, scaler)) for raw in (finland, australia)]
+        scaled[frame] = [scaler.transform(raw, origin_of(raw, scaler, [sites[name]])) for name, raw in windows.items()]
     np.testing.assert_allclose(scaled["enu"][0], scaled["enu"][1], rtol=0.0, atol=1e-4)
+    np.testing.assert_allclose(scaled["radial"][0], scaled["enu"][0], rtol=0.0, atol=2.5e-5)
+    np.testing.assert_allclose(scaled["radial"][1], scaled["enu"][1], rtol=0.0, atol=2.5e-5)
     assert np.abs(scaled["ecef"][0] - scaled["ecef"][1]).max() > 0.1
 
 

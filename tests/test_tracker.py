@@ -41,7 +41,7 @@ def params():
 
 @pytest.fixture(scope="module")
 def models_dir(tmp_path_factory) -> Path:
-    return tf.trained_models(tmp_path_factory, "ecef")
+    return tf.trained_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -306,24 +306,19 @@ def scenario_measurements(radar, rng: np.random.Generator) -> tuple[np.ndarray, 
     return tf.merge((a, np.arange(30)), (b, 100 + np.arange(30)), (clutter, 1000 + np.arange(len(clutter))))
 
 
-@pytest.fixture(scope="module")
-def enu_models_dir(tmp_path_factory) -> Path:
-    return tf.trained_models(tmp_path_factory, "enu")
-
-
-def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_enu_frame(enu_models_dir):
+def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_default_frame(models_dir):
     """The same measurements (slant range, azimuth, altitude, with noise) tracked by a radar in Finland
-    and one in Australia, with networks scaled in the `enu` frame: identical tracks, plot ids,
-    association kinds and weights, and states that agree in each radar's own ENU frame.
+    and one in Australia, with networks scaled in the default `radial` frame: identical tracks, plot
+    ids, association kinds and weights, and states that agree in each radar's own ENU frame.
 
     The states cannot agree exactly: eq. 4.2 places a plot with the meridian radius at the radar's
     latitude (6 384 km at 60 N, 6 355 km at 34 S), which moves the elevation, and so the ENU up
-    coordinate, by about r^2/(2R) * dR/R: 8 m at 150 km. The networks see their windows in the ENU frame
+    coordinate, by about r^2/(2R) * dR/R: 8 m at 150 km. The networks see their windows in the radial frame
     of each window's origin, whose relation to the radar's frame also depends slightly on the
     ellipsoid's curvature there, and a network can amplify small input differences. 50 m covers
     this; a frame error would show as kilometres.
     """
-    params = tf.make_params({"windows.frame": "enu"})
+    params = tf.make_params()
     radars = [tf.radar_at(params.radar, *FINLAND), tf.radar_at(params.radar, *AUSTRALIA)]
     features, ids = scenario_measurements(radars[0], np.random.default_rng(31))
     measured = tf.measurement_table(features, ids, radars[0], radar_id=1, scenario_id=4)
@@ -335,7 +330,7 @@ def test_same_scenario_at_two_radar_sites_gives_the_same_tracks_in_the_enu_frame
         measured = measured.set_column(index, measured.schema.field(name),
                                        pa.array(measured.column(name).to_numpy() + values))
     results = [track_recording(recording_plots(measured, tf.radar_table(1, radar), params), "via", WINDOW_M, params,
-                               enu_models_dir) for radar in radars]
+                               models_dir) for radar in radars]
     finland, australia = results
     assert finland.num_rows == australia.num_rows == len(ids)
     for column in ("track_id", "plot_id", "association", "status", "time_unix_s", "radar_id", "scenario_id"):

@@ -60,10 +60,10 @@ class RecordingGate(WindowGate):
         return super().__call__(tracks, slots, row, prediction)
 
 
-def composition(estimator=None, gate=None, assigner=None, mature_from: int = 2, prefilter_m: float = 20000.0
-                ) -> Composition:
+def composition(estimator=None, gate=None, assigner=None, mature_from: int = 2, prefilter_m: float = 20000.0,
+                mature_first: bool = False) -> Composition:
     return Composition("stub", estimator or StayingEstimator(), gate or WindowGate(WINDOW_M), RadiusGate(WINDOW_M),
-                       "radius", mature_from, prefilter_m, assigner or NearestPerPlot(), RULE)
+                       "radius", mature_from, prefilter_m, assigner or NearestPerPlot(), RULE, mature_first)
 
 
 def plots(times: list[float], offsets_m: list[float], targets: list[int] | None = None):
@@ -107,6 +107,16 @@ def test_plots_out_of_every_gate_start_tracks_that_die_after_one_silence():
     assert (updates["association"] == "start").all()
 
 
+@pytest.mark.parametrize("mature_first, expected", [(False, [0, 0, 0, 0, 1, 1]), (True, [0, 0, 0, 0, 1, 0])])
+def test_mature_first_keeps_a_plot_the_established_track_gates(mature_first, expected):
+    """A track of four plots at 0 m; a plot at 2500 m misses its 2 km window and starts a young track;
+    the next plot, at 1500 m, is inside the mature track's window (error 0.75) and nearer the young
+    track's plot (error 0.5). Nearest of all gives it to the young track, which takes the aircraft
+    over; mature first keeps it on the established track."""
+    updates = track(plots([0, 6, 12, 18, 24, 30], [0, 0, 0, 0, 2500, 1500]), composition(mature_first=mature_first))
+    assert updates["track_id"].tolist() == expected
+
+
 def test_each_prediction_is_made_once_and_handed_to_gate_and_update():
     """For each plot with mature candidates the estimator predicts once; the gate scores with that
     prediction and the winner's update resumes from the very same object; young tracks get none."""
@@ -145,7 +155,7 @@ def test_the_oracle_joins_each_plot_to_its_own_targets_track():
     offsets = [0, 3000, 50, 1000, 2000, 1020, 2000, 1000, 40]
     targets = [1, 2, NO_TARGET, 1, 2, NO_TARGET, 1, 2, NO_TARGET]
     oracle = Composition("oracle", StayingEstimator(), AcceptAll(), RadiusGate(WINDOW_M), "radius", 1, float("inf"),
-                         TrueAssociation(), RULE)
+                         TrueAssociation(), RULE, False)
     updates = track(plots(times, offsets, targets), oracle)
     assert sorted(tf.tracks_of(updates).values()) == [[0, 3, 6], [1, 4, 7], [2], [5], [8]]
     assert set(updates["association"][updates["association"] != "start"]) == {"oracle"}

@@ -135,17 +135,18 @@ def test_route_with_two_confirmed_tracks_and_a_false_plot_counts_by_hand(counts)
     assert counts[0] == RouteCounts(target_plots=11, false_plots=3, confirmed_associations=5,
                                     false_confirmed_associations=1, target_confirmed_associations=4,
                                     error_sum_m=pytest.approx(230.0), confirmed_tracks=2,
-                                    confirmed_track_lengths=[3, 2])
+                                    confirmed_track_lengths=[3, 2], aircraft_tracks=2)
 
 
 def test_second_and_third_routes_count_by_hand(counts):
     assert counts[1] == RouteCounts(target_plots=6, false_plots=1, confirmed_associations=2,
                                     false_confirmed_associations=0, target_confirmed_associations=2,
                                     error_sum_m=pytest.approx(100.0), confirmed_tracks=1,
-                                    confirmed_track_lengths=[2])
+                                    confirmed_track_lengths=[2], aircraft_tracks=1)
     assert counts[2] == RouteCounts(target_plots=1, false_plots=1, confirmed_associations=0,
                                     false_confirmed_associations=0, target_confirmed_associations=0,
-                                    error_sum_m=0.0, confirmed_tracks=0, confirmed_track_lengths=[])
+                                    error_sum_m=0.0, confirmed_tracks=0, confirmed_track_lengths=[],
+                                    aircraft_tracks=0)
 
 
 @pytest.mark.parametrize("metric, expected", [
@@ -156,6 +157,7 @@ def test_second_and_third_routes_count_by_hand(counts):
     ("MMTL", 2.25),           # ((3 + 2) / 2 + 2 / 1) / 2 routes with confirmed tracks
     ("ROCA", 6.0 / 18.0),     # target plots associated to confirmed tracks / all target plots
     ("ROFA", 1.0 / 7.0),      # false confirmed associations / all confirmed associations
+    ("tracks_per_aircraft", 1.0),  # (2 + 1 + 0) / 3 routes: track 1 of route A holds 2 target plots of 3
 ])
 def test_each_metric_by_hand(counts, metric, expected):
     assert summarise(counts)[metric] == pytest.approx(expected, rel=1e-12)
@@ -186,3 +188,18 @@ def test_no_confirmed_association_gives_nan_ratios(counts):
     summary = summarise(counts[2:])
     assert (summary["NOPA"], summary["NOFPA"], summary["NOMT"], summary["ROCA"]) == (0, 0, 0.0, 0.0)
     assert np.isnan(summary["MAE"]) and np.isnan(summary["MMTL"]) and np.isnan(summary["ROFA"])
+
+
+def test_a_confirmed_track_of_mostly_false_plots_is_not_one_of_the_aircrafts_tracks():
+    """A clutter track confirmed on false plots that once takes a target plot counts in NOMT (every
+    confirmed track) but not in tracks_per_aircraft; the aircraft's own track does."""
+    route = [(5, 0.0, 300, NEAR, W[0], "start"), (6, 1.0, 310, NEAR, W[0], "start"),
+             (5, 6.0, 301, NEAR, W[1], "radius"), (6, 7.0, 311, NEAR, W[1], "radius"),
+             (5, 12.0, 302, NEAR, W[2], "via"), (6, 13.0, 312, NEAR, W[2], "via"),
+             (5, 18.0, 303, NEAR, W[3], "via"), (6, 19.0, 313, NEAR, W[3], "via"),     # both confirmed
+             (5, 24.0, 304, NEAR, 1.0, "via"), (6, 25.0, 314, NEAR, 1.0, "via"),
+             (5, 30.0, 305, NEAR, 1.0, "via")]
+    is_target = {plot: plot in (305, 310, 311, 312, 313, 314) for plot in (*range(300, 306), *range(310, 315))}
+    counts = route_counts(updates_of(route, truth_a), is_target, truth_a, RULE)
+    assert (counts.confirmed_tracks, counts.aircraft_tracks) == (2, 1)
+    assert summarise([counts])["NOMT"] == 2 and summarise([counts])["tracks_per_aircraft"] == 1

@@ -292,7 +292,7 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
     assert params["network.hidden"] == str(CONFIGS[kind].hidden)
     assert params["network.epochs"] == str(CLI_EPOCHS)
     assert params["training.accelerator"] == "cpu"
-    assert params["windows.frame"] == "ecef"
+    assert params["windows.frame"] == "radial"
     assert params["windows.holdout_fraction"] == str(HOLDOUT_FRACTION)
 
     # One training and one validation loss per epoch, the same the stage wrote to reports/loss/<kind>.csv.

@@ -115,7 +115,7 @@ def test_state_windows_are_consecutive_true_states_and_targets_are_the_next_stat
     plots = windows.TargetPlots(
         scenario_id=np.full(count, 4), plot_id=np.arange(100, 100 + count), segment_id=np.repeat([0, 1], [7, 6]),
         time=time, position=true + 40.0, range_m=np.linalg.norm(true, axis=1) + 40.0,
-        true_position=true, true_range_m=np.linalg.norm(true, axis=1))
+        true_position=true, true_range_m=np.linalg.norm(true, axis=1), radar_position=np.zeros((count, 3)))
     starts = windows.window_starts(plots.segment_id, 6)
     np.testing.assert_array_equal(starts, [0, 1, 7])
     states = windows.state_features(plots.true_features(), starts, 6)
@@ -256,7 +256,7 @@ def per_step(table: pa.Table, column: str) -> np.ndarray:
 
 def unscaled(table: pa.Table, prefix: str, scaler: WindowScaler) -> np.ndarray:
     """The `prefix_*` windows back in metres and seconds, using each window's stored origin."""
-    origin = np.column_stack([per_step(table, f"origin_{axis}")[:, 0] for axis in "txyzr"])
+    origin = np.column_stack([per_step(table, f"origin_{name}")[:, 0] for name in materials.ORIGIN_COLUMNS])
     return scaler.inverse(windows.window_arrays(table, prefix, scaler.features), origin)
 
 

@@ -179,6 +179,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     """Train the predictor, filter and autoencoder (with its threshold) and save them in `folder`."""
     rng = np.random.default_rng(seed)
     radar = params.radar
+    site = geodesy.radar_site_ecef(radar)  # every synthetic flight is seen by this one radar
     scalers = materials.scalers(params.windows)
     true, noisy = synthetic_flights(rng, radar)
     cfg = params.windows
@@ -188,7 +189,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     raw_in, raw_out = predictor_pairs(true, cfg.predictor_inputs)
     keep = rng.choice(len(raw_in), min(len(raw_in), PREDICTOR_WINDOWS), replace=False)
     raw_in, raw_out = raw_in[keep], raw_out[keep]
-    origin = scaler.origin(raw_in)
+    origin = scaler.origin(raw_in, site)
     config = network_config("predictor", params)
     module, _ = train(config, scaler.transform(raw_in, origin), output_scaler(scaler).transform(raw_out, origin),
                       _training("predictor", params, EPOCHS["predictor"]))
@@ -200,7 +201,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     starts = range(0, true.shape[1] - length + 1, 3)
     raw_in = np.concatenate([noisy[:, s:s + length] for s in starts])
     raw_out = np.concatenate([true[:, s:s + length] for s in starts])
-    origin = scaler.origin(raw_in)
+    origin = scaler.origin(raw_in, site)
     config = network_config("filter", params)
     module, _ = train(config, scaler.transform(raw_in, origin),
                       scaler.transform(raw_out, origin)[:, -config.output_steps:],
@@ -211,7 +212,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     # whose 5th plot is the flight's next plot (target) or a clutter plot up to 20 km away (false).
     length = cfg.autoencoder_length
     raw = np.concatenate([noisy[:, s:s + length] for s in range(0, true.shape[1] - length + 1, 2)])
-    scaled = scaler.transform(raw, scaler.origin(raw))
+    scaled = scaler.transform(raw, scaler.origin(raw, site))
     config = network_config("autoencoder", params)
     module, _ = train(config, scaled, scaled, _training("autoencoder", params, EPOCHS["autoencoder"]))
     model = LoadedModel(module.network, config, scaler)
@@ -225,7 +226,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     calibration = np.concatenate([np.concatenate([head, target_candidate[:, None]], axis=1),
                                   np.concatenate([head, false_candidate[:, None]], axis=1)])
     labels = np.repeat([True, False], 200)
-    errors = model_eval.reconstruction_errors(model, scaler.transform(calibration, scaler.origin(calibration)))
+    errors = model_eval.reconstruction_errors(model, scaler.transform(calibration, scaler.origin(calibration, site)))
     threshold, rejected = model_eval.autoencoder_threshold(errors, labels)
     save_model(folder / "autoencoder.pt", module.network, config, scaler,
                {"threshold": threshold, "false_windows_rejected": rejected})
@@ -235,9 +236,10 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
 _TRAINED: dict[str, Path] = {}
 
 
-def trained_models(tmp_path_factory, frame: str = "ecef") -> Path:
-    """The folder of tiny trained models for `windows.frame = frame` (default params otherwise), trained
-    once per test process."""
+def trained_models(tmp_path_factory, frame: str | None = None) -> Path:
+    """The folder of tiny trained models for `windows.frame = frame` (the default params' frame when
+    None), trained once per test process."""
+    frame = frame or make_params().windows.frame
     if frame not in _TRAINED:
         folder = tmp_path_factory.mktemp(f"models_{frame}")
         build_models(folder, make_params({"windows.frame": frame}))

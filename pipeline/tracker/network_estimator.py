@@ -41,9 +41,11 @@ class NetworkEstimator:
         track = tracks.tracks[slot]
         track.memory = [tracks.plots.features[track.rows[0]]]
 
-    def state_windows(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
+    def state_windows(self, tracks: LiveTracks, slots: np.ndarray, time: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predictor input windows (K x 5 x 6, unscaled) of the tracks at `slots` predicting to
-        `time`, and the number of padded states of each (K,)."""
+        `time`, the number of padded states of each (K,), and the ECEF position of the radar of
+        each track's last plot (K x 3), for the window frame."""
         windows = np.empty((len(slots), self.inputs, 6))
         padded = np.empty(len(slots), dtype=np.int64)
         for n, slot in enumerate(slots):
@@ -56,18 +58,20 @@ class NetworkEstimator:
             window[padded[n]:, 0] = states[:, 0]
             window[padded[n]:, 2:] = states[:, 1:]
             window[padded[n]:, 1] = np.diff(np.append(states[:, 0], time))
-        return windows, padded
+        radar = tracks.plots.radar_position[[tracks.tracks[slot].rows[-1] for slot in slots]]
+        return windows, padded, radar
 
-    def predict_windows(self, windows: np.ndarray) -> np.ndarray:
-        """Predicted [t, x, y, z, r] at the end of each state window (K x 5)."""
+    def predict_windows(self, windows: np.ndarray, radar_ecef: np.ndarray) -> np.ndarray:
+        """Predicted [t, x, y, z, r] at the end of each state window (K x 5), seen by radars at `radar_ecef` (K x 3)."""
         scaler = self.predictor.scaler
-        origin = scaler.origin(windows)
+        origin = scaler.origin(windows, radar_ecef)
         outputs = self._run_predictor(scaler.transform(windows, origin)).astype(float)
         return self._predictor_out.inverse(outputs, origin)[:, -1]
 
     def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
         """The predictor's [t, x, y, z, r] of each track at `time` (the Prediction's state, K x 5)."""
-        rows = self.predict_windows(self.state_windows(tracks, slots, time)[0])
+        windows, _, radar = self.state_windows(tracks, slots, time)
+        rows = self.predict_windows(windows, radar)
         return Prediction(rows[:, 1:4], None, rows)
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
@@ -83,8 +87,9 @@ class NetworkEstimator:
             state = 0.5 * (prediction.state[index] + plot)
             state[0] = plot[0]
         else:
-            window = tracks.plots.features[[*track.rows[-(self.filter_plots - 1):], row]][None]
-            origin = self.filter.scaler.origin(window)
+            rows = [*track.rows[-(self.filter_plots - 1):], row]
+            window = tracks.plots.features[rows][None]
+            origin = self.filter.scaler.origin(window, tracks.plots.radar_position[rows[:1]])
             outputs = self._run_filter(self.filter.scaler.transform(window, origin)).astype(float)
             state = self._filter_out.inverse(outputs, origin)[0, -1]
             state[0] = plot[0]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline import geodesy
 from pipeline.inference import BatchNetwork
 from pipeline.model_store import LoadedModel
 from pipeline.params import TrackerParams
@@ -31,18 +32,22 @@ class MonteCarloGate:
     def __init__(self, estimator: NetworkEstimator, params: TrackerParams, rng: np.random.Generator) -> None:
         self.estimator, self.params, self.rng = estimator, params, rng
 
-    def _samples(self, count: int) -> np.ndarray:
-        """Offsets normal with sigma = radius / 3, pulled back into the ball of that radius."""
-        offsets = self.rng.normal(0.0, self.params.mia_ball_radius_m / 3.0, size=(count, 3))
+    def _samples(self, position: np.ndarray, radar_ecef: np.ndarray) -> np.ndarray:
+        """ECEF offsets (N x 3) of the states at `position` (N x 3): normal with sigma = radius / 3,
+        pulled back into the ball of that radius. Drawn in the radial frame at each state (cross-range,
+        down-range, up; `geodesy.radial_rotations`), so the same flight relative to the radar draws the
+        same samples at any site."""
+        offsets = self.rng.normal(0.0, self.params.mia_ball_radius_m / 3.0, size=position.shape)
         norms = np.linalg.norm(offsets, axis=1, keepdims=True)
-        return offsets * np.minimum(1.0, self.params.mia_ball_radius_m / np.maximum(norms, 1e-12))
+        local = offsets * np.minimum(1.0, self.params.mia_ball_radius_m / np.maximum(norms, 1e-12))
+        return np.einsum("nj,nji->ni", local, geodesy.radial_rotations(position, radar_ecef))
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         count = self.params.mia_samples
-        windows, padded = self.estimator.state_windows(tracks, slots, tracks.plots.time[row])
-        perturbed = np.repeat(windows, count, axis=0)
-        perturbed[:, -1, 2:5] += self._samples(len(perturbed))
-        predictions = self.estimator.predict_windows(perturbed).reshape(len(slots), count, -1)
+        windows, padded, radar = self.estimator.state_windows(tracks, slots, tracks.plots.time[row])
+        perturbed, radar = np.repeat(windows, count, axis=0), np.repeat(radar, count, axis=0)
+        perturbed[:, -1, 2:5] += self._samples(perturbed[:, -1, 2:5], radar)
+        predictions = self.estimator.predict_windows(perturbed, radar).reshape(len(slots), count, -1)
         mean = predictions.mean(axis=1)
         sigma = np.sqrt(((predictions[:, :, 1:4] - mean[:, None, 1:4]) ** 2).sum(axis=2).mean(axis=1))
         k = np.where(padded > 0, self.params.mia_k_padded_base - padded, self.params.mia_k_no_padding)
@@ -64,8 +69,9 @@ class AutoencoderGate:
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         features = tracks.plots.features
-        windows = np.stack([features[[*tracks.tracks[slot].rows[-self.history:], row]] for slot in slots])
-        origin = self.model.scaler.origin(windows)
+        rows = np.array([[*tracks.tracks[slot].rows[-self.history:], row] for slot in slots])
+        windows = features[rows]
+        origin = self.model.scaler.origin(windows, tracks.plots.radar_position[rows[:, 0]])
         scaled = self.model.scaler.transform(windows, origin)
         reconstructed = self.run(scaled)
         error = np.abs(reconstructed - scaled).sum(axis=(1, 2))

@@ -35,7 +35,9 @@ NO_CANDIDATES = Candidates(np.empty(0, dtype=np.int64), np.empty(0), np.empty(0,
 class Composition:
     """A tracker's parts. `gate` scores tracks with at least `mature_from` plots, `young_gate` the
     others; candidates lie within `prefilter_m` metres of the plot (by their last position).
-    `label` and `young_label` name, in the updates' `association` column, which gate won."""
+    `label` and `young_label` name, in the updates' `association` column, which gate won.
+    `mature_first`: a plot inside a mature track's gate is not offered to young tracks (see
+    `_candidates`)."""
 
     label: str
     estimator: Estimator
@@ -46,6 +48,7 @@ class Composition:
     prefilter_m: float
     assigner: Assigner
     management: TrackManagement
+    mature_first: bool
 
 
 def track(plots: Plots, tracker: Composition) -> dict[str, np.ndarray]:
@@ -95,7 +98,14 @@ def _scores(gate: Gate, live: LiveTracks, slots: np.ndarray, row: int, estimator
 
 
 def _candidates(live: LiveTracks, row: int, tracker: Composition) -> Candidates:
-    """The tracks within the pre-filter distance of plot `row`, scored."""
+    """The tracks within the pre-filter distance of plot `row`, scored.
+
+    With `mature_first`, young tracks are out of the running (error inf) for a plot that some
+    mature track's gate accepts: the track-file priority of Blackman & Popoli (1999),
+    established tracks before tentative ones. Without it one plot outside an established track's
+    gate (a manoeuvre, a plot with a large error) starts a track that is nearer to the next plot
+    by the young-track radius's measure, takes it, and the established track starves: one aircraft
+    becomes two tracks."""
     near = live.near(row, tracker.prefilter_m)
     if not len(near):  # most plots: clutter far from every track
         return NO_CANDIDATES
@@ -106,4 +116,6 @@ def _candidates(live: LiveTracks, row: int, tracker: Composition) -> Candidates:
         errors[~mature], _ = _scores(tracker.young_gate, live, near[~mature], row, tracker.estimator)
     if mature.any():
         errors[mature], prediction = _scores(tracker.gate, live, near[mature], row, tracker.estimator)
+        if tracker.mature_first and np.isfinite(errors[mature]).any():
+            errors[~mature] = np.inf
     return Candidates(near, errors, mature, prediction)
