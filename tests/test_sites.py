@@ -37,6 +37,7 @@ def one_route(tmp_path_factory: pytest.TempPathFactory):
     """Params with one test route, the classical trackers and both references, and a models
     folder with the filters at their start values (no network needed)."""
     params = tf.make_params({"routes.splits.test.constant_jerk": 0, "routes.splits.test.random_turns": 1,
+                             "routes.splits.test.sustained_turns": 0, "routes.splits.test.climb_dive": 0,
                              "evaluate.runs": [{"method": "kalman_cv", "window_m": 4000.0},
                                                {"method": "imm", "window_m": 4000.0}],
                              "evaluate.example_run": "kalman_cv_4000", "compute.workers": 1})
