@@ -90,6 +90,37 @@ def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
     return [site_report.site_sentence(sites, neural), site_report.site_table(sites, by_ospa(runs))]
 
 
+CONTINUITY_INTRO = (
+    "How many pieces each aircraft's track falls into (confirmed tracks that followed it, per route: "
+    "`pipeline/tracker_metrics.py`) and the share of its plots in confirmed tracks (ROCA), over all test "
+    "routes and by route strategy; each cell is tracks per aircraft · ROCA. Runs named `_m_of_n` are tracked "
+    "and scored under M-of-N confirmation and time-out deletion, the others under the thesis's weights "
+    "(`tracker.management`). The oracle's figure is the floor the routes allow: an aircraft that leaves "
+    "coverage and comes back is two tracks even with the true association.")
+
+
+def continuity_table(runs: dict[str, dict], by_strategy: dict[str, dict]) -> str:
+    """Tracks per aircraft and ROCA of every run (references first, then by method, window and
+    rule, so a run under both rules is two adjacent rows), over all routes and per strategy."""
+    strategies = list(next(iter(by_strategy.values()), {}))
+    order = list(registry.METHODS)
+
+    def position(name: str) -> tuple:
+        if name.endswith("_reference"):
+            return (-1, 0.0, "", name)
+        method, window, rule = registry.run_parts(name)
+        return (order.index(method) if method in order else len(order), float(window), rule or "", name)
+
+    def cell(values: dict) -> str:
+        return f"{_cell(values.get('tracks_per_aircraft'), '{:.2f}')} · {_cell(values.get('ROCA'), '{:.3f}')}"
+
+    lines = ["| tracker | all routes | " + " | ".join(strategies) + " |", "|---" * (len(strategies) + 2) + "|"]
+    for name in sorted(runs, key=position):
+        lines.append(f"| {name} | {cell(runs[name])} | "
+                     + " | ".join(cell(by_strategy.get(name, {}).get(s, {})) for s in strategies) + " |")
+    return "\n".join(lines)
+
+
 def tracker_table(runs: dict[str, dict]) -> str:
     forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "tracks_per_aircraft": "{:.2f}",
              "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
@@ -202,7 +233,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                               "network_prediction_error_m": networks["predictor"]["predictor_error_m"]},
                   "tuning": {kind: {"cost_before": v["cost_before"], "cost_after": v["cost_after"]}
                              for kind, v in tuning["filters"].items()},
-                  "sites": sites}
+                  "sites": sites, "by_strategy": tracker.get("by_strategy", {})}
     site_part = sites_section(sites, runs)
     text = "\n\n".join([
         f"# Neural and classical trackers on the same {params.evaluate.split} scenarios",
@@ -217,6 +248,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         "this machine.",
         tracker_table(runs), "![OSPA, MAE and ROCA of every tracker](comparison.png)",
         "![OSPA per scan: the share of scans at or below each value](ospa_per_scan.png)",
+        "## Track continuity", CONTINUITY_INTRO, continuity_table(runs, comparison["by_strategy"]),
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         f"## Tuning (on the {tuning['split']} split's target plots, cost {tuning['cost']})", tuning_table(tuning),

@@ -26,9 +26,10 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment, "evaluate")
 
-    results, per_scan, examples = evaluate_all(evaluation, params.workers)
+    results, per_scan, examples, by_strategy = evaluate_all(evaluation, params.workers)
     first = results[params.evaluate.runs[0].name]
-    metrics = {"runs": results, "plots": {"target": first["target_plots"], "false": first["false_plots"]},
+    metrics = {"runs": results, "by_strategy": by_strategy,
+               "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
     table = markdown_table({name: values for name, values in results.items() if not name.endswith("_reference")})
     example_rule = run_management(params)[params.evaluate.example_run]

@@ -58,6 +58,7 @@ class Scenario:
     truth: object                 # t -> ECEF positions (a spline over the route)
     scans: np.ndarray             # each plot's antenna scan
     coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
+    strategy: str                 # the route's strategy (routes.STRATEGIES), for metrics by kind of flight
 
 
 def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
@@ -74,7 +75,8 @@ def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Tab
         scenarios.append(Scenario(scenario_id, part, dict(zip(part.plot_id.tolist(),
                                                                 (part.target_id != NO_TARGET).tolist())),
                                   _clipped(trajectory), np.array([plot_scans[p] for p in part.plot_id.tolist()]),
-                                  np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage])))
+                                  np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage]),
+                                  str(route.column("strategy")[0].as_py())))
     return scenarios
 
 
@@ -238,18 +240,32 @@ def completed_units(evaluation: Evaluation, units: list[tuple[str, int]], worker
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) -> dict[str, dict[str, float]]:
+    """A run's metrics (without its speed) over the scenarios of each route strategy, by strategy
+    in the order of routes.STRATEGIES: how it fares on straight legs, short turns, long turns and
+    climbs, apart."""
+    by_strategy = {}
+    for strategy in routes.STRATEGIES:
+        chosen = [i for i, scenario in enumerate(scenarios) if scenario.strategy == strategy]
+        if chosen:
+            values = run_metrics([ordered[i] for i in chosen], sum(len(scenarios[i].plots) for i in chosen))
+            by_strategy[strategy] = {key: value for key, value in values.items() if key != SPEED}
+    return by_strategy
+
+
 def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
-                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict]]:
-    """Every run over every scenario, in `workers` processes: each run's metrics and the OSPA of
-    every scan (scenarios in order), and the example run's updates of the pictured scenarios by
-    scenario id. Each run's metrics are logged, after `label`, as soon as its last unit is in."""
+                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict], dict[str, dict]]:
+    """Every run over every scenario, in `workers` processes: each run's metrics, the OSPA of
+    every scan (scenarios in order), the example run's updates of the pictured scenarios by
+    scenario id, and each run's metrics by route strategy (`metrics_by_strategy`). Each run's
+    metrics are logged, after `label`, as soon as its last unit is in."""
     scenarios = evaluation.scenarios
     plots = sum(len(s.plots) for s in scenarios)
     units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
                    key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
     workers = max(1, min(workers, len(units)))
     parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
-    results, per_scan, examples = {}, {}, {}
+    results, per_scan, examples, by_strategy = {}, {}, {}, {}
     report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
     for done, ((name, index), result) in enumerate(completed_units(evaluation, units, workers), start=1):
         parts[name][index] = result
@@ -258,9 +274,10 @@ def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
             finished = parts.pop(name)
             ordered = [finished[i] for i in range(len(scenarios))]
             results[name] = run_metrics(ordered, plots)
+            by_strategy[name] = metrics_by_strategy(scenarios, ordered)
             per_scan[name] = np.concatenate([r.scan_ospa for r in ordered])
             examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
                              if r.updates is not None})
             log.info("%s %s: %s", label, name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
     return ({name: results[name] for name in evaluation.runs}, {name: per_scan[name] for name in evaluation.runs},
-            examples)
+            examples, {name: by_strategy[name] for name in evaluation.runs})

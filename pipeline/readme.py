@@ -119,6 +119,8 @@ def comparison_section(comparison: dict) -> str:
     return "\n\n".join([
         "\n".join(compare_stage.verdict(comparison["trackers"], comparison["holdout"])),
         compare_stage.tracker_table(comparison["trackers"]),
+        "Track continuity: tracks per aircraft · ROCA, over all test routes and by route strategy.",
+        compare_stage.continuity_table(comparison["trackers"], comparison.get("by_strategy", {})),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         compare_stage.holdout_table(comparison["holdout"]),
         *compare_stage.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"])])

@@ -64,7 +64,7 @@ def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
     with tempfile.TemporaryDirectory(prefix=f"site-{site.name}-") as folder:
         place_split(moved, Path(folder), label)
         prepared = evaluation.prepare(moved, Path(folder) / "simulated", Path(folder) / "routes", models_dir)
-        runs, _, _ = evaluation.evaluate_all(prepared, params.workers, label)
+        runs, _, _, _ = evaluation.evaluate_all(prepared, params.workers, label)
     return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, runs)
 
 

@@ -32,6 +32,7 @@ from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.tracks import LiveTracks
 from pipeline.tracker.updates import COLUMNS
 from tests import tracker_fixtures as tf
+from pipeline import compare_stage
 from pipeline.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
 from tests.project import default_params_tree
 
@@ -203,3 +204,18 @@ def test_a_confirmed_track_of_mostly_false_plots_is_not_one_of_the_aircrafts_tra
     counts = route_counts(updates_of(route, truth_a), is_target, truth_a, RULE)
     assert (counts.confirmed_tracks, counts.aircraft_tracks) == (2, 1)
     assert summarise([counts])["NOMT"] == 2 and summarise([counts])["tracks_per_aircraft"] == 1
+
+
+def test_continuity_table_puts_a_run_under_both_rules_side_by_side():
+    """The comparison's continuity table: references first, then runs by method and window with the
+    m_of_n run right after its thesis-rule twin; a strategy a run has no figures for reads n/a."""
+    runs = {"imm_4000_m_of_n": {"tracks_per_aircraft": 1.1, "ROCA": 0.96}, "via_4000": {"ROCA": 0.9},
+            "imm_4000": {"tracks_per_aircraft": 1.2, "ROCA": 0.95}, "oracle_reference": {"tracks_per_aircraft": 1.0}}
+    by_strategy = {"imm_4000": {"random_turns": {"tracks_per_aircraft": 1.5, "ROCA": 0.9},
+                                "sustained_turns": {"tracks_per_aircraft": 1.0, "ROCA": 0.875}}}
+    lines = compare_stage.continuity_table(runs, by_strategy).splitlines()
+    assert lines[0] == "| tracker | all routes | random_turns | sustained_turns |"
+    assert [line.split(" | ")[0] for line in lines[2:]] == ["| oracle_reference", "| via_4000", "| imm_4000",
+                                                              "| imm_4000_m_of_n"]
+    assert lines[4] == "| imm_4000 | 1.20 · 0.950 | 1.50 · 0.900 | 1.00 · 0.875 |"
+    assert lines[3] == "| via_4000 | n/a · 0.900 | n/a · n/a | n/a · n/a |"
