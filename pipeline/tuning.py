@@ -12,8 +12,11 @@ The cost is computed from the filtered positions after `burn_in_updates` updates
   position, which is 3 for a filter whose covariance tells the truth about its errors;
 - `rmse_in_gate` (ours): the RMSE, raised in proportion when more target plots fall outside the
   tracker's chi-square gate than the gate's probability P_G allows:
-  rmse * (1 + max(0, miss - (1 - P_G)) / (1 - P_G)), miss the share of scored plots whose
-  innovation distance (`batch_filters.FilteredSequences`) exceeds the gate. RMSE alone tunes
+  rmse * (1 + max(0, miss - (1 - P_G)) / (1 - P_G)), miss the share of gated plots whose
+  innovation distance (`batch_filters.FilteredSequences`) exceeds the gate. The gated plots are
+  those the tracker gates with the filter's prediction: from the `tracker.young_track_plots`-th
+  plot after each (re)start on, burn-in or not (a new track's velocity spread decides whether
+  its third plot is kept). RMSE alone tunes
   with the true association, so it never sees the gate: on routes that are mostly straight it
   drives the IMM's CV model to no process noise, whose tight prediction then gates out the
   target's plots in a long turn and splits the track. Twice the allowed misses doubles the cost.
@@ -61,13 +64,15 @@ class Sequences:
     valid: np.ndarray          # (B, T)
     restart: np.ndarray        # (B, T)
     scored: np.ndarray         # (B, T): counted in the cost (valid and past the burn-in)
+    gated: np.ndarray          # (B, T): gated by the tracker with the filter's prediction (valid, old enough)
     gate_probability: float    # the tracker's chi-square gate probability P_G (3 degrees of freedom)
 
 
 def target_sequences(plots: pa.Table, radar: Radar, restart_gap_s: float, burn_in_updates: int,
-                     gate_probability: float) -> Sequences:
+                     gate_probability: float, gated_from: int) -> Sequences:
     """Each route's target plots, with the truth and the converted-measurement covariance, to be
-    held to the tracker's gate of probability `gate_probability`."""
+    held to the tracker's gate of probability `gate_probability` from the `gated_from`-th plot of
+    each (re)start on (the tracker's young-track plots, which it gates by a radius, before)."""
     target = plots.filter(plots.column("is_target"))
     route = target.column("scenario_id").to_numpy()
     time = target.column("time_unix_s").to_numpy()
@@ -94,7 +99,8 @@ def target_sequences(plots: pa.Table, radar: Radar, restart_gap_s: float, burn_i
                           np.eye(3))  # padding: any invertible covariance, never used
     return Sequences(padded(time, 0.0), padded(position, 0.0), covariance, padded(truth, 0.0), valid,
                      padded(restart_at, False),
-                     padded(since_restart >= burn_in_updates, False), gate_probability)
+                     padded(since_restart >= burn_in_updates, False), padded(since_restart >= gated_from, False),
+                     gate_probability)
 
 
 def _packed(lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +173,7 @@ def assess(settings: FilterSettings, material: Sequences) -> Assessment:
         anees=float(nees.mean()),
         anees_bounds=tuple(float(b) for b in chi2.ppf([0.025, 0.975], df=3 * samples) / samples),
         nees_in_interval=float(((nees >= low) & (nees <= high)).mean()), samples=samples,
-        gate_misses=float((filtered.innovation_distance[material.scored] > gate).mean()),
+        gate_misses=float((filtered.innovation_distance[material.gated] > gate).mean()),
         gate_allowance=1.0 - material.gate_probability)
 
 

@@ -318,10 +318,11 @@ def plots_table(rows: list[tuple[int, float, Point, Point | None]]) -> pa.Table:
 def test_target_sequences_restart_after_gaps_and_routes_and_skip_the_burn_in(radar):
     """Tuning material from a hand-made table: route 1 has plots at 0-12 s and, after a 30 s gap
     (restart_gap_s = 24), at 42-60 s; route 2 at 0-12 s and, after exactly 24 s (no restart),
-    at 36 s; false plots are left out. Each (re)start begins a sequence, and the first
-    burn_in = 2 plots of each (the start and one update) are not scored."""
+    at 36 s; false plots are left out. Each (re)start begins a sequence; the first burn_in = 3
+    plots of each are not scored, and the tracker gates with the filter from the third plot
+    (gated_from = 2: the start and one update are gated by the young-track radius)."""
     point = to_ecef(np.array([[30000.0, 40000.0, 9000.0]]), radar)[0]
-    rows, expected = [], {}  # expected: plot x -> (restart, scored)
+    rows, expected = [], {}  # expected: plot x -> (restart, scored, gated)
     for scenario, times, restarts in ((1, [0.0, 6.0, 12.0, 42.0, 48.0, 54.0, 60.0], {0.0, 42.0}),
                                       (2, [0.0, 6.0, 12.0, 36.0], {0.0})):
         since = 0
@@ -329,17 +330,17 @@ def test_target_sequences_restart_after_gaps_and_routes_and_skip_the_burn_in(rad
             since = 0 if time in restarts else since + 1
             x = point[0] + 1000.0 * scenario + time      # identifies the plot
             rows.append((scenario, T0 + time, (x, point[1], point[2]), (x + 40.0, point[1], point[2])))
-            expected[x] = (time in restarts, since >= 2)
+            expected[x] = (time in restarts, since >= 3, since >= 2)
     rows += [(1, T0 + 3.0, tuple(point + 5e4), None), (2, T0 + 20.0, tuple(point - 5e4), None)]
-    material = tuning.target_sequences(plots_table(rows[::-1]), radar, restart_gap_s=24.0, burn_in_updates=2,
-                                       gate_probability=0.995)
+    material = tuning.target_sequences(plots_table(rows[::-1]), radar, restart_gap_s=24.0, burn_in_updates=3,
+                                       gate_probability=0.995, gated_from=2)
 
     valid = material.valid
     assert valid.sum() == len(expected) == 11
-    got = {float(x): (bool(r), bool(s)) for x, r, s in zip(material.positions[valid][:, 0], material.restart[valid],
-                                                          material.scored[valid])}
+    got = {float(x): (bool(r), bool(s), bool(g)) for x, r, s, g in zip(
+        material.positions[valid][:, 0], material.restart[valid], material.scored[valid], material.gated[valid])}
     assert got == expected
-    assert not (material.restart | material.scored)[~valid].any()
+    assert not (material.restart | material.scored | material.gated)[~valid].any()
     np.testing.assert_allclose(material.truth[valid][:, 0] - material.positions[valid][:, 0], 40.0)
     # Between restarts a row runs forward in time, so each sequence is one route's plots in order.
     for row in range(valid.shape[0]):
@@ -363,7 +364,8 @@ def material(radar) -> tuning.Sequences:
         rows += [(index // 2, t + 3600.0 * (index % 2), tuple(p), tuple(e)) for t, p, e in zip(times, plots, truth)]
     clutter = to_ecef(rng.uniform([-1e5, -1e5, 1000.0], [1e5, 1e5, 12000.0], (30, 3)), radar)
     rows += [(index % 4, T0 + rng.uniform(0.0, 100.0), tuple(p), None) for index, p in enumerate(clutter)]
-    return tuning.target_sequences(plots_table(rows), radar, restart_gap_s=24.0, burn_in_updates=3, gate_probability=0.995)
+    return tuning.target_sequences(plots_table(rows), radar, restart_gap_s=24.0, burn_in_updates=3,
+                                   gate_probability=0.995, gated_from=2)
 
 
 @pytest.mark.parametrize("cost, start_noise", [("rmse", 200.0), ("nees", 0.05), ("rmse_in_gate", 0.05)])
