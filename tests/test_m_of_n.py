@@ -29,9 +29,9 @@ from tests.test_tracker_loop import composition, plots
 
 RULE = MOfN(m=3, n=5, opportunity_s=tf.SCAN_S, delete_after_s=20.0)
 # the default run's tuned filters (models/kalman_tuned.json of the committed run, rounded)
-TUNED = {"cv": FilterSettings("cv", (6.773,), 298.8, 10.0, 0.05, 0.9),
-         "ca": FilterSettings("ca", (4.228,), 175.7, 10.0, 0.05, 0.9),
-         "imm": FilterSettings("imm", (0.00666, 13.62), 236.3, 10.0, 0.05, 0.9)}
+TUNED = {"cv": FilterSettings("cv", (16.25,), 143.6, 10.0, 0.05, 0.9),
+         "ca": FilterSettings("ca", (16.85,), 119.8, 10.0, 0.05, 0.9),
+         "imm": FilterSettings("imm", (1.694, 21.21), 208.5, 10.0, 0.05, 0.9)}
 
 
 def m_of_n(**parts):
@@ -111,20 +111,15 @@ def confirmed_tracks(method: str, rule_name: str) -> int:
     return len(np.unique(updates["track_id"][confirmed_associations(updates, composition.management)]))
 
 
-IMM_SPLITS = ("the tuned IMM splits the orbit under either rule (6 confirmed tracks under m_of_n, 5 under thesis): "
-              "its mode probability swings to the CV model, whose tuned process noise (0.0067 m/s^2) shrinks the "
-              "predicted covariance until the next plot (~700 m off) is gated out; a filter matter, not management")
-
-
-@pytest.mark.parametrize("method", [
-    "kalman_cv", "kalman_ca", pytest.param("imm", marks=pytest.mark.xfail(strict=True, reason=IMM_SPLITS))])
-def test_a_20_minute_orbit_at_3_dps_is_one_confirmed_track_under_m_of_n(method, capsys):
-    """No clutter, 200 plots: under m_of_n (3 of 5, 20 s time-out) the orbit is one confirmed track.
-    The thesis rule's count is printed, not asserted (issue 13 item 4)."""
-    with capsys.disabled():
-        print(f"\norbit, {method}: confirmed tracks under thesis {confirmed_tracks(method, registry.THESIS_RULE)}, "
-              f"under m_of_n {confirmed_tracks(method, registry.M_OF_N_RULE)}")
-    assert confirmed_tracks(method, registry.M_OF_N_RULE) == 1
+@pytest.mark.parametrize("rule", [registry.THESIS_RULE, registry.M_OF_N_RULE])
+@pytest.mark.parametrize("method", ["kalman_cv", "kalman_ca", "imm"])
+def test_a_20_minute_orbit_at_3_dps_is_one_confirmed_track(method, rule):
+    """No clutter, 200 plots: under either rule the orbit is one confirmed track with every tuned
+    filter. Before the tuning cost counted gate misses (`kalman.cost: rmse_in_gate`) and mature
+    tracks had first claim on their plots (`tracker.mature_first`), the IMM split it into 5 (thesis)
+    or 6 (m_of_n): tuned on RMSE alone its CV model had no process noise (0.0067 m/s^2), its
+    prediction gated out a plot 700 m off in the turn, and the track that plot started took over."""
+    assert confirmed_tracks(method, rule) == 1
 
 
 def test_evaluate_scores_each_run_under_its_own_rule():
