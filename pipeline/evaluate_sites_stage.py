@@ -18,7 +18,8 @@ log = logging.getLogger("pipeline")
 
 
 def training_runs(params: Params, path: Path) -> dict[str, dict]:
-    """The `evaluate` stage's metrics of every run at the training site, checked to be of params' runs."""
+    """The `evaluate` stage's metrics at the training site of the runs scored at sites
+    (`evaluate.site_runs`) and the references, checked to be of params' runs."""
     if not path.is_file():
         raise io.InputError(f"{path}: file not found (run `dvc repro evaluate`)")
     runs = json.loads(path.read_text())["runs"]
@@ -26,7 +27,9 @@ def training_runs(params: Params, path: Path) -> dict[str, dict]:
     if sorted(runs) != expected:
         raise io.InputError(f"{path}: runs {sorted(runs)}, but params evaluate {expected}; "
                             "run `dvc repro evaluate`")
-    return runs
+    at_sites = ({run.name for run in params.evaluate.runs_at_sites()}
+                | {f"{method}_reference" for method in params.evaluate.references})
+    return {name: values for name, values in runs.items() if name in at_sites}
 
 
 def run_evaluate_sites(params: Params, models_dir: Path, reports_dir: Path) -> None:

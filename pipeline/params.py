@@ -264,6 +264,11 @@ class Evaluate:
     example_scenarios: int
     example_run: str
     sites: tuple[Site, ...]         # evaluate_sites: the same routes at these radar sites (empty: none)
+    site_runs: tuple[str, ...]      # evaluate_sites: the runs (by name) scored at the sites (empty: every run)
+
+    def runs_at_sites(self) -> tuple[EvaluationRun, ...]:
+        """The runs `evaluate_sites` scores: those `site_runs` names, in `runs` order, or all of them."""
+        return tuple(run for run in self.runs if not self.site_runs or run.name in self.site_runs)
 
 
 @dataclass(frozen=True)
@@ -745,7 +750,15 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
     return Evaluate(split=split, runs=tuple(runs), references=tuple(references),
                     ospa_cutoff_m=_positive(tree, "ospa_cutoff_m", p), ospa_order=_positive(tree, "ospa_order", p),
                     example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run,
-                    sites=_sites(tree, p))
+                    sites=_sites(tree, p), site_runs=_site_runs(tree, p, names))
+
+
+def _site_runs(tree: Mapping[str, Any], p: str, names: list[str]) -> tuple[str, ...]:
+    """`evaluate.site_runs`: names of `evaluate.runs` (`<method>_<window>[_<rule>]`), each once."""
+    chosen = _get(tree, "site_runs", p)
+    if not isinstance(chosen, list) or any(name not in names for name in chosen) or len(set(chosen)) != len(chosen):
+        raise ParamError(f"{p}.site_runs = {chosen!r}: must list distinct names of the runs {names} ([]: all of them)")
+    return tuple(chosen)
 
 
 SITE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a site's name labels report rows and keys

@@ -28,9 +28,12 @@ log = logging.getLogger("pipeline")
 
 
 def at_site(params: Params, site: Site) -> Params:
-    """Params with the radar at `site`; everything else, seeds included, unchanged."""
-    return dataclasses.replace(params, radar=dataclasses.replace(
-        params.radar, latitude_deg=site.latitude_deg, longitude_deg=site.longitude_deg, height_m=site.height_m))
+    """Params with the radar at `site` and only the runs scored at sites (`evaluate.site_runs`);
+    everything else, seeds included, unchanged."""
+    return dataclasses.replace(
+        params, radar=dataclasses.replace(params.radar, latitude_deg=site.latitude_deg,
+                                          longitude_deg=site.longitude_deg, height_m=site.height_m),
+        evaluate=dataclasses.replace(params.evaluate, runs=params.evaluate.runs_at_sites()))
 
 
 def place_split(params: Params, folder: Path, label: str) -> None:

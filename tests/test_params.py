@@ -170,6 +170,7 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
     naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
     that does not exist is named with its run."""
+    params_tree["evaluate"]["site_runs"] = []
     params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                        {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs
@@ -192,6 +193,20 @@ def test_default_sites_cover_the_earth(params_tree):
     assert any(s.longitude_deg > 179 for s in sites) and any(s.longitude_deg < -179 for s in sites)
     params_tree["evaluate"]["sites"] = []
     assert parse_params(params_tree).evaluate.sites == ()
+
+
+def test_site_runs_choose_the_runs_scored_at_the_sites(params_tree):
+    """`evaluate.site_runs` names runs of `evaluate.runs` (in runs order at the sites); [] scores
+    them all; a name that is not a run is refused with the runs listed."""
+    evaluate = parse_params(params_tree).evaluate
+    assert [run.name for run in evaluate.runs_at_sites()] == [
+        name for name in (run.name for run in evaluate.runs) if name in evaluate.site_runs]
+    assert len(evaluate.runs_at_sites()) == len(evaluate.site_runs) < len(evaluate.runs)
+    params_tree["evaluate"]["site_runs"] = []
+    assert parse_params(params_tree).evaluate.runs_at_sites() == parse_params(params_tree).evaluate.runs
+    params_tree["evaluate"]["site_runs"] = ["via_4000", "imm_400"]
+    with pytest.raises(ParamError, match=r"evaluate.site_runs = \['via_4000', 'imm_400'\]: must list distinct names"):
+        parse_params(params_tree)
 
 
 SITE = {"name": "tromso", "latitude_deg": 69.68, "longitude_deg": 18.94, "height_m": 100.0}
