@@ -82,12 +82,13 @@ def by_ospa(runs: dict[str, dict]) -> list[str]:
 
 
 def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
-    """The verdict on the radar sites and the table of every run (`runs`, best OSPA first);
-    nothing when there are no sites besides the training one."""
+    """The verdict on the radar sites and the table of the runs scored there (those of `runs`
+    that `sites` has, best OSPA first); nothing when there are no sites besides the training one."""
     if len(sites["sites"]) < 2:
         return []
-    neural = [name for name in runs if registry.family_of_run(name) == registry.NEURAL]
-    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, by_ospa(runs))]
+    scored = [name for name in by_ospa(runs) if name in sites["runs"]]  # evaluate.site_runs and the references
+    neural = [name for name in scored if registry.family_of_run(name) == registry.NEURAL]
+    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, scored)]
 
 
 CONTINUITY_INTRO = (

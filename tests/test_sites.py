@@ -140,6 +140,9 @@ def test_site_comparison_marks_what_moves_more_than_the_tolerance():
     assert site_report.site_sentence(comparison, ["via_4000"]) == (
         "- Radar sites: 0 of 1 neural trackers keep their position error (MAE) within 10% of the training "
         "site's at all 2 other sites; the largest change: via_4000 at b, ratio 1.150.")
+    runs = {"via_4000": {"OSPA": 2.0}, "kalman_cv_4000": {"OSPA": 1.0}, "via_4000_m_of_n": {"OSPA": 3.0}}
+    sentence, table = compare_stage.sites_section(comparison, runs)  # a run not scored at the sites: left out
+    assert "via_4000_m_of_n" not in table and table.index("kalman_cv_4000") < table.index("| via_4000")
 
 
 def test_stale_evaluate_metrics_are_refused(tmp_path: Path):
