@@ -175,7 +175,7 @@ def simulated(tmp_path_factory) -> dict:
 
 @pytest.fixture(scope="module")
 def models_dir(tmp_path_factory) -> Path:
-    return tf.trained_models(tmp_path_factory, "ecef")
+    return tf.trained_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

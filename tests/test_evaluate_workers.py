@@ -50,7 +50,7 @@ def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
     io.write_parquet(route_table, folder / "routes" / f"{split.name}.parquet")
     models = folder / "models"
     models.mkdir()
-    for network in tf.trained_models(tmp_path_factory, "ecef").glob("*.pt"):
+    for network in tf.trained_models(tmp_path_factory).glob("*.pt"):
         (models / network.name).write_bytes(network.read_bytes())
     io.write_json({"cost": "rmse", "filters": {kind: settings.to_dict()
                                                for kind, settings in tf.untuned_filters(params).items()}},
