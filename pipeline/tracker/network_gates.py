@@ -32,22 +32,24 @@ class MonteCarloGate:
     def __init__(self, estimator: NetworkEstimator, params: TrackerParams, rng: np.random.Generator) -> None:
         self.estimator, self.params, self.rng = estimator, params, rng
 
-    def _samples(self, position: np.ndarray, radar_ecef: np.ndarray) -> np.ndarray:
-        """ECEF offsets (N x 3) of the states at `position` (N x 3): normal with sigma = radius / 3,
-        pulled back into the ball of that radius. Drawn in the radial frame at each state (cross-range,
-        down-range, up; `geodesy.radial_rotations`), so the same flight relative to the radar draws the
-        same samples at any site."""
-        offsets = self.rng.normal(0.0, self.params.mia_ball_radius_m / 3.0, size=position.shape)
+    def _samples(self, position: np.ndarray, radar_ecef: np.ndarray, count: int) -> np.ndarray:
+        """`count` ECEF offsets of each state at `position` (K x 3), state by state (K * count x 3):
+        normal with sigma = radius / 3, pulled back into the ball of that radius. Drawn in the radial
+        frame at each state (cross-range, down-range, up; `geodesy.radial_rotations`, one per state),
+        so the same flight relative to the radar draws the same samples at any site."""
+        offsets = self.rng.normal(0.0, self.params.mia_ball_radius_m / 3.0, size=(len(position) * count, 3))
         norms = np.linalg.norm(offsets, axis=1, keepdims=True)
         local = offsets * np.minimum(1.0, self.params.mia_ball_radius_m / np.maximum(norms, 1e-12))
-        return np.einsum("nj,nji->ni", local, geodesy.radial_rotations(position, radar_ecef))
+        rotations = np.repeat(geodesy.radial_rotations(position, radar_ecef), count, axis=0)
+        return np.einsum("nj,nji->ni", local, rotations)
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         count = self.params.mia_samples
         windows, padded, radar = self.estimator.state_windows(tracks, slots, tracks.plots.time[row])
-        perturbed, radar = np.repeat(windows, count, axis=0), np.repeat(radar, count, axis=0)
-        perturbed[:, -1, 2:5] += self._samples(perturbed[:, -1, 2:5], radar)
-        predictions = self.estimator.predict_windows(perturbed, radar).reshape(len(slots), count, -1)
+        perturbed = np.repeat(windows, count, axis=0)
+        perturbed[:, -1, 2:5] += self._samples(windows[:, -1, 2:5], radar, count)
+        predictions = self.estimator.predict_windows(perturbed, np.repeat(radar, count, axis=0)).reshape(
+            len(slots), count, -1)
         mean = predictions.mean(axis=1)
         sigma = np.sqrt(((predictions[:, :, 1:4] - mean[:, None, 1:4]) ** 2).sum(axis=2).mean(axis=1))
         k = np.where(padded > 0, self.params.mia_k_padded_base - padded, self.params.mia_k_no_padding)
