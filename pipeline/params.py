@@ -361,13 +361,13 @@ def _get(tree: Mapping[str, Any], key: str, path: str) -> Any:
 
 
 def _number(tree: Mapping[str, Any], key: str, path: str, low: float = -math.inf,
-            high: float = math.inf, low_open: bool = False) -> float:
+            high: float = math.inf, low_open: bool = False, high_open: bool = False) -> float:
     value = _get(tree, key, path)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ParamError(f"{path}.{key} = {value!r}: must be a finite number")
-    if value < low or value > high or (low_open and value == low):
-        bracket = "(" if low_open else "["
-        raise ParamError(f"{path}.{key} = {value!r}: must be in {bracket}{low}, {high}]")
+    if value < low or value > high or (low_open and value == low) or (high_open and value == high):
+        brackets = ("(" if low_open else "[", ")" if high_open else "]")
+        raise ParamError(f"{path}.{key} = {value!r}: must be in {brackets[0]}{low}, {high}{brackets[1]}")
     return float(value)
 
 
@@ -809,7 +809,8 @@ def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
         restart_gap_s=_positive(tree, "restart_gap_s", p), max_iterations=_integer(tree, "max_iterations", p, 1),
         velocity_std_mps=_positive(tree, "velocity_std_mps", p),
         acceleration_std_mps2=_positive(tree, "acceleration_std_mps2", p), noise_std=noise,
-        imm_switch_probability=_number(tree, "imm_switch_probability", p, 0.0, 1.0, low_open=True),
+        imm_switch_probability=_number(tree, "imm_switch_probability", p, 0.0, 1.0, low_open=True,
+                                       high_open=True),
         imm_initial_cv_probability=_number(tree, "imm_initial_cv_probability", p, 0.0, 1.0),
     )
 

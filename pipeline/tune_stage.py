@@ -44,6 +44,7 @@ def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, ma
     settings, before, after, evaluations = tuning.tune(start, material, cost, max_iterations)
     return settings, {
         "noise_std": list(settings.noise_std), "velocity_std_mps": settings.velocity_std_mps,
+        "switch_probability": settings.switch_probability,
         "at_search_bound": tuning.at_bounds(start, settings),
         "cost_before": before.cost(cost), "cost_after": after.cost(cost),
         "before": before.to_dict(), "after": after.to_dict(), "cost_evaluations": evaluations,
@@ -53,10 +54,10 @@ def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, ma
 def _log_tuned(kind: str, entry: dict) -> None:
     after = entry["after"]
     log.info("tune_kalman %s: cost %.4g -> %.4g, RMSE %.1f m (plots %.1f m), ANEES %.3f (95 %% bounds %.3f-%.3f), "
-             "noise %s, velocity spread %.1f m/s, %d evaluations, %.1f s", kind, entry["cost_before"],
-             entry["cost_after"], after["rmse_m"], after["plot_rmse_m"], after["anees"], *after["anees_bounds"],
-             [round(v, 4) for v in entry["noise_std"]], entry["velocity_std_mps"], entry["cost_evaluations"],
-             entry["seconds"])
+             "noise %s, velocity spread %.1f m/s, switch probability %.4g, %d evaluations, %.1f s", kind,
+             entry["cost_before"], entry["cost_after"], after["rmse_m"], after["plot_rmse_m"], after["anees"],
+             *after["anees_bounds"], [round(v, 4) for v in entry["noise_std"]], entry["velocity_std_mps"],
+             entry["switch_probability"], entry["cost_evaluations"], entry["seconds"])
 
 
 def _log_through(queue: multiprocessing.Queue, level: int) -> None:

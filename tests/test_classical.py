@@ -11,6 +11,7 @@ runs on a few minutes of the simulator's plots.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -389,6 +390,20 @@ def test_tuning_lowers_its_cost_from_a_bad_start(material, cost, start_noise):
     assert evaluations > 1
 
 
+def test_imm_tuning_searches_the_switch_probability_too(material):
+    """The IMM's switch probability is tuned with its noise (log-odds, within a factor of 1000 of the
+    start odds): from a start of 1e-6 (the IMM never leaves the mode it starts in) the tuner moves
+    it, keeps it a probability, and reports the values that ended at the search's edge by name."""
+    start = replace(settings("imm", (1.0, 3.0)), switch_probability=1e-6)
+    tuned, before, after, _ = tuning.tune(start, material, "rmse_in_gate", 300)
+    assert 0.0 < tuned.switch_probability < 1.0 and tuned.switch_probability != start.switch_probability
+    assert after.cost("rmse_in_gate") <= before.cost("rmse_in_gate")
+    assert set(tuning.at_bounds(start, tuned)) <= {"noise_std[0]", "noise_std[1]", "velocity_std_mps",
+                                                     "switch_probability"}
+    assert tuning.at_bounds(start, replace(start, switch_probability=1e-6 * 1000.1)) == ["switch_probability"]
+    assert "switch_probability" not in tuning.at_bounds(settings("cv", (1.0,)), settings("cv", (1.0,)))
+
+
 def test_tuning_that_does_not_converge_raises_with_the_values_reached(material):
     """With one Nelder-Mead iteration tuning fails: TuningError naming the filter and the values it reached."""
     start = settings("imm", (1.0, 3.0))
@@ -507,6 +522,7 @@ def test_constant_acceleration_transition_moves_a_state_exactly():
     ("ca_noise_std", 1.0),
     ("max_iterations", 0),
     ("imm_switch_probability", 0.0),
+    ("imm_switch_probability", 1.0),
     ("imm_initial_cv_probability", 1.5),
     ("restart_gap_s", 0.0),
 ])

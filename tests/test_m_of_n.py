@@ -31,7 +31,7 @@ RULE = MOfN(m=3, n=5, opportunity_s=tf.SCAN_S, delete_after_s=20.0)
 # the default run's tuned filters (models/kalman_tuned.json of the committed run, rounded)
 TUNED = {"cv": FilterSettings("cv", (20.22,), 112.4, 10.0, 0.05, 0.9),
          "ca": FilterSettings("ca", (24.36,), 167.2, 10.0, 0.05, 0.9),
-         "imm": FilterSettings("imm", (2.071, 53.76), 100.7, 10.0, 0.05, 0.9)}
+         "imm": FilterSettings("imm", (0.1161, 34.68), 253.8, 10.0, 0.1645, 0.9)}
 
 
 def m_of_n(**parts):
