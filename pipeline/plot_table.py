@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import date
 from functools import cached_property
 from pathlib import Path
@@ -64,7 +64,9 @@ class Plots:
     (N, 3) ECEF metres, `range_m` (N,) the measured slant range to the plot's radar, `covariance`
     (N, 3, 3) m^2 the converted-measurement covariance of the position, `target_id` (N,) int32 the
     true target (NO_TARGET for false plots, or when the truth is unknown: `has_truth` False).
-    `radars` maps each radar id to its description."""
+    `radars` maps each radar id to its description. `skipped` counts, by reason, the records or
+    plots that reading the recording left out (`track` reports them in its summary); every part
+    of a recording (`take`, `scenarios`) carries the recording's counts."""
 
     plot_id: np.ndarray
     radar_id: np.ndarray
@@ -76,6 +78,7 @@ class Plots:
     target_id: np.ndarray
     has_truth: bool
     radars: Mapping[int, Radar]
+    skipped: Mapping[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.time)
@@ -96,7 +99,7 @@ class Plots:
         """The plots at `rows` (indices or a boolean mask), in that order."""
         return Plots(self.plot_id[rows], self.radar_id[rows], self.scenario_id[rows], self.time[rows],
                      self.position[rows], self.range_m[rows], self.covariance[rows], self.target_id[rows],
-                     self.has_truth, self.radars)
+                     self.has_truth, self.radars, self.skipped)
 
     def scenarios(self) -> Iterator[tuple[int, "Plots"]]:
         """Each scenario's plots (in scenario id order), each tracked on its own."""

@@ -80,6 +80,27 @@ def track_recording(plots: Plots, method: str, window_m: float, params: Params, 
     return pa.concat_tables(parts) if parts else TRACK_SCHEMA.empty_table()
 
 
+def summary_path(out: Path) -> Path:
+    """Where `track` writes the summary of a run with output `out`: beside it, `<stem>.summary.json`."""
+    return out.with_name(f"{out.stem}.summary.json")
+
+
+def run_summary(plots: Plots, tracks: pa.Table) -> dict:
+    """What a user checks first after `track`: the plots tracked, the records or plots left out by
+    reason (`Plots.skipped`), and per radar its plots and confirmed tracks. A track is one
+    (radar, scenario, track id): track ids are only unique within a radar's scenario."""
+    radar_ids = np.asarray(tracks.column("radar_id"))
+    confirmed = np.asarray(tracks.column("status")) == "confirmed"
+    keys = np.column_stack([radar_ids, np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO)),
+                            np.asarray(tracks.column("track_id"))])[confirmed]
+    distinct = np.unique(keys, axis=0) if len(keys) else keys
+    radars = {int(r): {"plots": int((plots.radar_id == r).sum()),
+                       "confirmed_tracks": int((distinct[:, 0] == r).sum())} for r in sorted(plots.radars)}
+    return {"plots_tracked": len(plots), "skipped": dict(sorted(plots.skipped.items())),
+            "plots_skipped": int(sum(plots.skipped.values())), "track_updates": tracks.num_rows,
+            "confirmed_tracks": len(distinct), "radars": {str(r): v for r, v in radars.items()}}
+
+
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path) -> None:
     if asterix_paths:
@@ -91,10 +112,13 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
         plots = plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
     tracks = track_recording(plots, method, window_m, params, models_dir)
+    summary = run_summary(plots, tracks)
     io.write_parquet(tracks, out)
-    confirmed = np.unique(np.asarray(tracks.column("track_id"))[np.asarray(tracks.column("status")) == "confirmed"])
-    log.info("track: %d plots, %d track updates, %d confirmed tracks -> %s", len(plots), tracks.num_rows,
-             len(confirmed), out)
+    io.write_json(summary, summary_path(out))
+    skipped = ", ".join(f"{count} {reason}" for reason, count in summary["skipped"].items())
+    log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on %d radars -> %s, summary %s",
+             len(plots), f"skipped {skipped}" if skipped else "none skipped", tracks.num_rows,
+             summary["confirmed_tracks"], len(plots.radars), out, summary_path(out))
 
 
 def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:

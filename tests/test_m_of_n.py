@@ -58,16 +58,18 @@ def test_an_mth_association_outside_the_last_n_scans_does_not_confirm():
 
 
 def test_a_tentative_track_with_no_hit_in_its_last_n_scans_is_deleted():
-    """A lone plot's track records misses at 9, 15, 21, 27 and 33 s: at 33 s its last 5 scans hold no
-    hit and it is deleted; a plot at the same place at 32 s still joins it, one at 33 s starts anew."""
-    assert track(plots([0, 32], [0, 100]), m_of_n())["track_id"].tolist() == [0, 0]
-    assert track(plots([0, 33], [0, 100]), m_of_n())["track_id"].tolist() == [0, 1]
+    """A lone plot's track records misses at 9, 15, 21, 27 and 33 s: after 33 s its last 5 scans hold
+    no hit and it is deleted; a plot at the same place at 33 s (to the time quantum) still joins it,
+    one at 33.01 s starts anew."""
+    assert track(plots([0, 33], [0, 100]), m_of_n())["track_id"].tolist() == [0, 0]
+    assert track(plots([0, 33 + 1 / 128], [0, 100]), m_of_n())["track_id"].tolist() == [0, 0]
+    assert track(plots([0, 33.01], [0, 100]), m_of_n())["track_id"].tolist() == [0, 1]
 
 
-@pytest.mark.parametrize("silence_s, same_track", [(19.9, True), (20.0, False), (20.1, False)])
-def test_a_confirmed_track_silent_for_delete_after_s_is_deleted_the_boundary_inclusive(silence_s, same_track):
-    """Confirmed at 12 s (hits at 0, 6, 12), then silent: a plot 19.9 s later joins it; a plot
-    exactly delete_after_s = 20 s later (or more) finds it deleted and starts a new track."""
+@pytest.mark.parametrize("silence_s, same_track", [(19.9, True), (20.0, True), (20.01, False), (20.1, False)])
+def test_a_confirmed_track_silent_longer_than_delete_after_s_is_deleted(silence_s, same_track):
+    """Confirmed at 12 s (hits at 0, 6, 12), then silent: a plot 19.9 s or exactly delete_after_s =
+    20 s later joins it; a plot later than that finds it deleted and starts a new track."""
     updates = track(plots([0, 6, 12, 12 + silence_s], [0, 100, 200, 300]), m_of_n())
     assert RULE.status(updates["weight"][2]) == "confirmed"
     assert updates["track_id"].tolist() == ([0] * 4 if same_track else [0, 0, 0, 1])

@@ -7,6 +7,7 @@ writes them) is a checkout that has run `dvc repro tune_kalman` and no training.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -105,6 +106,24 @@ def test_imm_tracks_a_two_radar_recording_with_only_the_tuned_filters(params, tm
     position = np.column_stack([tracks[f"{a}_ecef_m"] for a in "xyz"])
     site = np.array([geodesy.radar_site_ecef(by_radar[r]) for r in tracks["radar_id"]])
     np.testing.assert_allclose(tracks["range_m"], np.linalg.norm(position - site, axis=1), rtol=1e-12)
+
+
+def test_the_summary_counts_tracks_per_radar_as_radar_scenario_and_track_id(params, tmp_path, filters_only):
+    """Track ids are only unique within a radar's scenario: the same target seen by two radars tracked
+    apart (each radar in its own scenario, so both start at track 0) is one confirmed track per radar,
+    two in all, in `tracks.summary.json` beside the output."""
+    plots, radars, target_ids = two_radar_recording(params, np.random.default_rng(2))
+    scenario = pa.array(plots.column("radar_id").to_numpy().astype(np.int32))
+    plots = plots.set_column(plots.schema.get_field_index("scenario_id"), "scenario_id", scenario)
+    assert track_command(tmp_path, filters_only, "imm", plots, radars) == 0
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    tracks = pq.read_table(tmp_path / "tracks.parquet").to_pydict()
+    confirmed = np.asarray(tracks["status"]) == "confirmed"
+    assert set(np.asarray(tracks["track_id"])[confirmed].tolist()) == {0}
+    assert summary["confirmed_tracks"] == 2
+    assert summary["radars"] == {str(r): {"plots": int((plots.column("radar_id").to_numpy() == r).sum()),
+                                          "confirmed_tracks": 1} for r in (1, 2)}
+    assert summary["plots_tracked"] == plots.num_rows and summary["skipped"] == {}
 
 
 @pytest.mark.parametrize("method, missing, stage", [("via", "filter.pt", "train_filter"),

@@ -201,11 +201,11 @@ def test_documented_weights_and_silence(params):
 
 
 def test_new_track_is_deleted_after_one_silence_period(params):
-    """Start weight 0.4: still alive 11.999 s later; at 12.001 s lowered at the start weight, so deleted."""
+    """Start weight 0.4: still alive 11.999 s later; at 12.01 s lowered at the start weight, so deleted."""
     live = live_track(params, 0, time=100.0)
     assert live.manage(111.999) == []
     assert len(live) == 1 and live.weight[live.alive][0] == pytest.approx(0.4)
-    removed = live.manage(112.001)
+    removed = live.manage(112.01)
     assert [track.track_id for track in removed] == [0] and len(live) == 0
 
 
@@ -214,19 +214,19 @@ def test_confirmed_track_drops_to_candidate_after_12_s_and_is_deleted_after_24_s
     live = live_track(params, 3, time=100.0)
     assert live.weight[live.alive][0] == pytest.approx(1.0)
     assert live.manage(111.999) == [] and live.weight[live.alive][0] == pytest.approx(1.0)
-    assert live.manage(112.001) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
+    assert live.manage(112.01) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
     assert live.manage(123.999) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
-    removed = live.manage(124.001)
+    removed = live.manage(124.01)
     assert len(removed) == 1 and len(removed[0].rows) == 4 and len(live) == 0
 
 
 def test_two_silence_periods_in_one_call_delete_a_confirmed_track(params):
-    """Management first run 24.001 s after the last association lowers twice: 1.0 -> 0.8 -> deleted;
+    """Management first run 24.01 s after the last association lowers twice: 1.0 -> 0.8 -> deleted;
     23.999 s after it lowers once."""
     once = live_track(params, 3)
     assert once.manage(23.999) == [] and once.weight[once.alive][0] == pytest.approx(0.8)
     twice = live_track(params, 3)
-    assert len(twice.manage(24.001)) == 1 and len(twice) == 0
+    assert len(twice.manage(24.01)) == 1 and len(twice) == 0
 
 
 @pytest.mark.parametrize("steps, after_12_s", [(2, None), (1, 0.4), (0, None)])
@@ -236,23 +236,23 @@ def test_lower_weights_die_at_the_candidate_or_start_weight(params, steps, after
     live = live_track(params, steps)
     assert live.weight[live.alive][0] == pytest.approx(0.4 + 0.2 * steps)
     assert live.manage(11.999) == [] and len(live) == 1
-    live.manage(12.001)
+    live.manage(12.01)
     if after_12_s is None:
         assert len(live) == 0
         return
     assert len(live) == 1 and live.weight[live.alive][0] == pytest.approx(after_12_s)
     assert live.manage(23.999) == [] and len(live) == 1
-    assert len(live.manage(24.001)) == 1 and len(live) == 0
+    assert len(live.manage(24.01)) == 1 and len(live) == 0
 
 
 def test_an_association_restarts_the_silence_clock(params):
-    """Associated again at t=10, a confirmed track is not lowered at 12.001 but at 22.001."""
+    """Associated again at t=10, a confirmed track is not lowered at 12.01 but at 22.01."""
     live = live_track(params, 3, later=(10.0,))
     slot = int(np.flatnonzero(live.alive)[0])
     live.associate(slot, 4, live.plots.position[4])
-    assert live.manage(12.001) == [] and live.weight[slot] == pytest.approx(1.0)
+    assert live.manage(12.01) == [] and live.weight[slot] == pytest.approx(1.0)
     assert live.manage(21.999) == [] and live.weight[slot] == pytest.approx(1.0)
-    assert live.manage(22.001) == [] and live.weight[slot] == pytest.approx(0.8)
+    assert live.manage(22.01) == [] and live.weight[slot] == pytest.approx(0.8)
 
 
 @pytest.mark.parametrize("gap_s, same_track", [(18.0, True), (30.0, False)])

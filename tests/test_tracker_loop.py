@@ -90,6 +90,19 @@ def test_a_track_starts_is_confirmed_at_its_fourth_plot_and_labels_its_gates():
     assert np.isnan(updates["position_covariance"]).all()
 
 
+@pytest.mark.parametrize("gap_s, same_track", [(12.0 - 1 / 128, True), (12.0, True), (12.0 + 1 / 128, True),
+                                                (12.02, False)])
+def test_a_revisit_exactly_on_the_silence_boundary_is_associated_before_the_lowering(gap_s, same_track):
+    """Case 07's kind: a candidate (0.8, after three plots 6 s apart) misses one scan and its next
+    plot comes silence_s = 12 s later, to the time quantum (ASTERIX's 1/128 s) either side: the plot
+    joins the track (back to 1.0) before the due lowering would delete it, whichever way the time was
+    rounded; a plot clearly later finds the candidate deleted and starts a new track."""
+    updates = track(plots([0, 6, 12, 12 + gap_s], [0, 100, 200, 300]), composition())
+    assert updates["weight"][2] == pytest.approx(0.8)
+    assert updates["track_id"].tolist() == ([0] * 4 if same_track else [0, 0, 0, 1])
+    assert updates["weight"][-1] == pytest.approx(1.0 if same_track else 0.4)
+
+
 @pytest.mark.parametrize("gap_s, same_track", [(18.0, True), (23.9, True), (24.1, False), (40.0, False)])
 def test_a_silent_confirmed_track_is_lowered_once_then_deleted(gap_s, same_track):
     """A confirmed track silent for up to 24 s (lowered once, to 0.8) takes the next plot (back to 1.0);

@@ -12,9 +12,9 @@ confirmation; deletion after a time without an update, as Stone Soup's `UpdateTi
   within its last `n` opportunities (the start counts as one), and not before; a confirmed
   track stays confirmed until deleted.
 - **Deletion.** A tentative track with no hit in its last `n` opportunities is deleted; a
-  confirmed track silent for `delete_after_s` seconds or longer is deleted (the boundary is
-  inclusive: a track silent exactly `delete_after_s` when a plot is processed is gone before
-  that plot is associated).
+  confirmed track silent for longer than `delete_after_s` seconds is deleted (a plot arriving
+  exactly `delete_after_s` after the last hit, to the time quantum, is still offered to it:
+  `pipeline.tracker.tracks`).
 
 The weight (the update table's `weight` column) is the track's hits of its last `n`
 opportunities as binary digits, the latest the highest, scaled into [0, 1): a tentative

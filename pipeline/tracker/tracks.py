@@ -11,6 +11,13 @@ The state a track shows the loop is its position (ECEF metres) after its last up
 estimator keeps beyond that (a filter's velocity and covariance, a network's past states) the
 estimator keeps, by slot. A track's history is the rows of its plots in the plot table being
 tracked.
+
+A track falls due for lowering at its last association plus the management rule's silence; it
+is lowered only when a plot comes later than that by more than TIME_QUANTUM_S. A plot arriving
+exactly at the boundary is offered to the track first: radar plot times are quantised (ASTERIX
+I048/140 to 1/128 s) and a track revisited one silence period later would otherwise live or die
+on which side of the boundary a rounded time falls (case 07: a radial target with one missed
+scan, its next plot exactly `silence_s` = two scans later).
 """
 
 from __future__ import annotations
@@ -22,6 +29,8 @@ import numpy as np
 
 from pipeline.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
+
+TIME_QUANTUM_S = 1.0 / 128.0  # ASTERIX CAT048 I048/140 time-of-day resolution (EUROCONTROL CAT048 ed. 1.32)
 
 
 @dataclass
@@ -106,10 +115,10 @@ class LiveTracks:
         return track is not None and track.track_id == track_id
 
     def manage(self, now: float) -> list[Track]:
-        """Lower the weight of the tracks silent until `now`, deleting those the management rule
-        deletes. Returns the deleted tracks."""
+        """Lower the weight of the tracks whose due time is more than TIME_QUANTUM_S before `now`,
+        deleting those the management rule deletes. Returns the deleted tracks."""
         removed = []
-        while self._due and self._due[0][0] <= now:
+        while self._due and self._due[0][0] + TIME_QUANTUM_S < now:
             due, slot, generation = heapq.heappop(self._due)
             if generation != self._generation[slot]:
                 continue
