@@ -14,7 +14,9 @@ Readings where the thesis is brief:
   ROFA = false plots associated to confirmed tracks / all associations to confirmed tracks.
 
 Ours, for track continuity (issue 13): `tracks_per_aircraft`, the confirmed tracks that
-followed the aircraft (most of their confirmed associations are its plots), averaged over routes.
+followed the aircraft (most of their confirmed associations are its plots), averaged over the
+routes whose aircraft the radar saw (at least one target plot: a route flown wholly outside
+coverage has no aircraft to track).
 NOMT counts every confirmed track, false ones too; this counts how many pieces the aircraft's
 track fell into: 1 is one unbroken track per route (more where the aircraft leaves coverage and
 comes back, which the oracle's figure shows), 0 a route never tracked.
@@ -107,6 +109,7 @@ def summarise(routes: list[RouteCounts]) -> dict[str, float]:
     nofpa = sum(r.false_confirmed_associations for r in routes)
     target_plots = sum(r.target_plots for r in routes)
     with_tracks = [np.mean(r.confirmed_track_lengths) for r in routes if r.confirmed_track_lengths]
+    seen = [r.aircraft_tracks for r in routes if r.target_plots]
     return {
         "MAE": sum(r.error_sum_m for r in routes) / nopa if nopa else float("nan"),
         "NOFPA": nofpa,
@@ -115,7 +118,7 @@ def summarise(routes: list[RouteCounts]) -> dict[str, float]:
         "MMTL": float(np.mean(with_tracks)) if with_tracks else float("nan"),
         "ROCA": sum(r.target_confirmed_associations for r in routes) / target_plots if target_plots else float("nan"),
         "ROFA": nofpa / nopa if nopa else float("nan"),
-        "tracks_per_aircraft": float(np.mean([r.aircraft_tracks for r in routes])) if routes else float("nan"),
+        "tracks_per_aircraft": float(np.mean(seen)) if seen else float("nan"),
         "target_plots": target_plots,
         "false_plots": sum(r.false_plots for r in routes),
     }

@@ -164,6 +164,16 @@ def test_each_metric_by_hand(counts, metric, expected):
     assert summarise(counts)[metric] == pytest.approx(expected, rel=1e-12)
 
 
+def test_a_route_the_radar_never_saw_has_no_aircraft_to_count(counts):
+    """A route flown wholly outside coverage (no target plot) leaves tracks_per_aircraft as it was:
+    (2 + 1 + 0) / 3 routes seen; NOMT still averages over every route."""
+    unseen = RouteCounts(target_plots=0, false_plots=4, confirmed_associations=0, false_confirmed_associations=0,
+                         target_confirmed_associations=0, error_sum_m=0.0, confirmed_tracks=0,
+                         confirmed_track_lengths=[], aircraft_tracks=0)
+    summary = summarise([*counts, unseen])
+    assert summary["tracks_per_aircraft"] == pytest.approx(1.0) and summary["NOMT"] == pytest.approx(3 / 4)
+
+
 def test_summary_has_every_metric_and_the_plot_totals(counts):
     summary = summarise(counts)
     assert set(METRICS) <= set(summary)
