@@ -3,16 +3,23 @@
 Every plot carries its sensor. A recording is plots (`radar_id`, time, slant range, azimuth,
 altitude; optionally `scenario_id` and, from the simulator, `target_id`) and a radar
 description (one row per radar: `radar_id`, site latitude, longitude and height, optionally its
-`scan_period_s`). Each plot is placed in ECEF from its own measurements and its own radar's site
+`scan_period_s` and its own error figures `sigma_range_m`, `sigma_azimuth_deg`,
+`sigma_altitude_m`). Each plot is placed in ECEF from its own measurements and its own radar's site
 (thesis eqs 4.1-4.6, `geodesy.plot_to_ecef`), and gets its converted-measurement covariance from
 its own radar's errors (`baselines.measurement_covariance`), so plots of several radars can be
-tracked together. The radars' error figures (`sigma_*`) and, where the description has no scan
-period, the rotation come from params' `radar` section.
+tracked together. Every property of a radar comes from its own row where the row gives it; params'
+`radar` section fills in what it leaves out (null or no column): the error figures, and the
+rotation where there is no scan period.
 
-Plots of a radar the description lacks stop the reading with an error naming the radar id.
-Plots out of time order within a scenario are sorted (stable) and counted in a warning: a
-recording merged from several files is often slightly out of order, and the tracker needs time
-order.
+A user's Parquet recording is checked value by value first (`input_checks`: physical ranges,
+unique plot and radar ids, no day errors in the times). Plots of a radar the description lacks
+stop the reading with an error naming the radar id. A plot identical to an earlier one of the same
+radar and scenario (same time, range, azimuth and altitude, whatever its plot id) is dropped and
+counted (`Plots.skipped["duplicate plot"]`, and a warning): recordings off redundant networks hold
+every packet twice, and a twin associated with its own plot at distance 0 would confirm clutter in
+half the scans. Plots out of time order within a scenario are sorted (stable) with a warning
+giving how many plots moved and the largest backward step: a recording merged from several files
+is often slightly out of order, and the tracker needs time order.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ from typing import Iterator, Mapping
 import numpy as np
 import pyarrow as pa
 
-from pipeline import asterix_io, baselines, geodesy, io
+from pipeline import asterix_io, baselines, geodesy, input_checks, io
 from pipeline.params import Radar
 
 log = logging.getLogger("pipeline")
@@ -51,6 +58,10 @@ RADAR_INPUT_SCHEMA = io.schema(
     ("height_m", pa.float64()),
     ("scan_period_s", pa.float64(), True),
 )
+RADAR_ERROR_COLUMNS = ("sigma_range_m", "sigma_azimuth_deg", "sigma_altitude_m")  # named as in params' `radar`
+RADAR_FILE_SCHEMA = pa.schema([*RADAR_INPUT_SCHEMA, *(pa.field(name, pa.float64()) for name in RADAR_ERROR_COLUMNS)])
+OPTIONAL_RADAR_COLUMNS = ("scan_period_s", *RADAR_ERROR_COLUMNS)
+DUPLICATE_PLOT = "duplicate plot"  # the `Plots.skipped` reason of a dropped twin
 NO_SCENARIO = -1  # scenario id of plots that have none (ASTERIX, or a Parquet file without the column)
 NO_TARGET = -1    # target id of a false plot, or of every plot when the truth is unknown
 
@@ -108,19 +119,23 @@ class Plots:
 
 
 def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
-    """Each described radar (RADAR_INPUT_SCHEMA rows) as params' `radar` at that site, with the
-    row's scan period where it gives one."""
+    """Each described radar (RADAR_INPUT_SCHEMA rows, optionally with RADAR_ERROR_COLUMNS) as
+    params' `radar` at that site, with the row's scan period and error figures where it gives them."""
     out = {}
     for row in radar_table.to_pylist():
         period = row.get("scan_period_s")
+        errors = {name: row[name] for name in RADAR_ERROR_COLUMNS if row.get(name) is not None}
         out[int(row["radar_id"])] = dataclasses.replace(
             radar, latitude_deg=row["latitude_deg"], longitude_deg=row["longitude_deg"], height_m=row["height_m"],
-            rotation_rpm=60.0 / period if period else radar.rotation_rpm)
+            rotation_rpm=60.0 / period if period else radar.rotation_rpm, **errors)
     return out
 
 
-def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plots:
-    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id.
+def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str,
+               skipped: Mapping[str, int] | None = None) -> Plots:
+    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id. Twins of earlier
+    plots are dropped; `skipped` (what the reader already left out, by reason) plus those twins
+    become the result's `skipped`.
 
     Raises io.InputError naming `source` and the radar id when a plot's radar is not described."""
     radar_ids = plots.column("radar_id").to_numpy()
@@ -128,14 +143,20 @@ def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plo
     if unknown:
         raise io.InputError(f"{source}: plots from radar id {unknown[0]} ({len(unknown)} unknown in all), which "
                             f"the radar description does not list (it has {sorted(radars)})")
+    skipped = dict(skipped or {})
+    first = _first_of_twins(plots)
+    if len(first) < plots.num_rows:
+        twins = plots.num_rows - len(first)
+        skipped[DUPLICATE_PLOT] = skipped.get(DUPLICATE_PLOT, 0) + twins
+        log.warning("%s: %d duplicate plots (the same radar, scenario, time, range, azimuth and altitude as an "
+                    "earlier plot) dropped", source, twins)
+        plots = plots.take(first)
     scenario_ids = plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
     times = plots.column("time_unix_s").to_numpy()
+    _warn_out_of_order(times, scenario_ids, source)
     order = np.lexsort((times, scenario_ids))
-    out_of_order = _count_out_of_order(times, scenario_ids)
-    if out_of_order:
-        log.warning("%s: %d plots out of time order; sorted by time", source, out_of_order)
     table = plots.take(order)
-    radar_ids, range_m = radar_ids[order], table.column("range_m").to_numpy()
+    radar_ids, range_m = table.column("radar_id").to_numpy(), table.column("range_m").to_numpy()
     azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
     position, covariance = np.empty((len(order), 3)), np.empty((len(order), 3, 3))
     for radar_id in np.unique(radar_ids):
@@ -145,20 +166,41 @@ def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plo
         covariance[rows] = baselines.measurement_covariance(position[rows], radar)
     target = table.column("target_id")
     return Plots(table.column("plot_id").to_numpy(), radar_ids, scenario_ids[order], times[order], position, range_m,
-                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars))
+                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars),
+                 skipped)
 
 
-def _count_out_of_order(times: np.ndarray, scenario_ids: np.ndarray) -> int:
-    """Plots earlier than the plot before them in the same scenario."""
-    same = scenario_ids[1:] == scenario_ids[:-1]
-    return int(((np.diff(times) < 0) & same).sum())
+def _first_of_twins(plots: pa.Table) -> np.ndarray:
+    """Rows (ascending) of the plots that are not twins of an earlier row: the same radar, scenario,
+    time, range, azimuth and altitude (the plot id may differ, as when each of two redundant feeds'
+    copies got its own)."""
+    keys = np.column_stack([plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
+                            plots.column("radar_id").to_numpy(),
+                            *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg",
+                                                                           "altitude_m"))])
+    order = np.lexsort(keys.T[::-1])  # stable: of equal rows, the earliest comes first
+    ordered = keys[order]
+    return np.sort(order[np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]])
+
+
+def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str) -> None:
+    """Warn of plots earlier than a plot before them in their scenario: how many will move when
+    sorted, and the largest backward step (a day error shows as about 86400 s)."""
+    lags = input_checks.time_lags(times, scenario_ids)
+    moved = int((lags > 0).sum())
+    if moved:
+        log.warning("%s: %d plots out of time order (up to %.1f s earlier than a plot before them); sorted by time",
+                    source, moved, lags.max())
 
 
 def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plots:
     """Plots from Parquet (the schema `simulate` writes, or a user's with PLOT_INPUT_SCHEMA's
-    columns) and their radar description (RADAR_INPUT_SCHEMA). Errors name the file and column."""
+    columns) and their radar description (RADAR_FILE_SCHEMA), each checked (`input_checks`). Errors
+    name the file and column."""
     plots = io.read_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
-    radars = io.read_parquet(radar_path, RADAR_INPUT_SCHEMA, optional=("scan_period_s",))
+    input_checks.check_plots(plots, plots_path)
+    radars = io.read_parquet(radar_path, RADAR_FILE_SCHEMA, optional=OPTIONAL_RADAR_COLUMNS)
+    input_checks.check_radars(radars, radar_path)
     return plot_table(plots, sensors(radars, radar), str(plots_path))
 
 

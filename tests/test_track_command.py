@@ -7,6 +7,7 @@ writes them) is a checkout that has run `dvc repro tune_kalman` and no training.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -156,3 +157,187 @@ def test_plots_of_an_undescribed_radar_name_the_radar_id(params, tmp_path):
     with pytest.raises(io.InputError, match=r"plots from radar id 2 .*it has \[1\]") as error:
         plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
     assert str(plots_path) in str(error.value)
+
+
+# ----------------------------------------------------------------------------- what a Parquet recording must hold
+
+def with_column(table: pa.Table, column: str, values: np.ndarray) -> pa.Table:
+    """`table` with `column` replaced by `values` (same field)."""
+    index = table.schema.get_field_index(column)
+    return table.set_column(index, table.schema.field(index), pa.array(values, table.schema.field(index).type))
+
+
+def with_values(table: pa.Table, column: str, rows: list[int], value: float) -> pa.Table:
+    """`table` with `column` set to `value` at `rows`."""
+    values = table.column(column).to_numpy(zero_copy_only=False).copy()
+    values[rows] = value
+    return with_column(table, column, values)
+
+
+def with_radar_column(radars: pa.Table, column: str, values: list[float | None]) -> pa.Table:
+    """The radar description with an extra (or replaced) float column."""
+    if column in radars.column_names:
+        radars = radars.drop_columns([column])
+    return radars.append_column(pa.field(column, pa.float64()), pa.array(values, pa.float64()))
+
+
+@pytest.mark.parametrize("column, value", [
+    ("range_m", 0.0), ("range_m", -30000.0), ("range_m", np.inf), ("range_m", 3e6),
+    ("azimuth_deg", 360.0), ("azimuth_deg", -0.5), ("azimuth_deg", np.inf),
+    ("altitude_m", np.inf), ("altitude_m", -np.inf), ("altitude_m", -2000.0), ("altitude_m", 2e5),
+    ("time_unix_s", np.inf), ("time_unix_s", -1.0), ("time_unix_s", 8e9),
+])
+def test_an_impossible_plot_value_names_the_file_column_first_row_value_and_count(params, tmp_path, column, value):
+    """Rows 5 and 9 given an impossible value (non-finite, a range <= 0 or beyond any line of sight,
+    an azimuth outside [0, 360), an altitude outside [-1 km, 100 km], a time before 1970 or after 2200)."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    plots_path, radar_path = tf.write_recording(tmp_path, with_values(plots, column, [5, 9], value), radars)
+    with pytest.raises(io.InputError) as error:
+        plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
+    assert str(error.value).startswith(f"{plots_path}: column '{column}' must be ")
+    assert f"row 5 is {float(value)!r} (2 of {plots.num_rows} rows bad)" in str(error.value)
+
+
+@pytest.mark.parametrize("column, value", [
+    ("latitude_deg", 90.5), ("latitude_deg", -np.inf), ("longitude_deg", 180.5), ("longitude_deg", -181.0),
+    ("height_m", np.inf), ("height_m", 1e6), ("scan_period_s", 0.0), ("scan_period_s", -6.0),
+    ("scan_period_s", np.nan), ("sigma_range_m", 0.0), ("sigma_azimuth_deg", np.inf), ("sigma_altitude_m", -30.0),
+])
+def test_an_impossible_radar_value_names_the_file_column_row_and_value(params, tmp_path, column, value):
+    """The second radar's row given an impossible site, scan period or error figure; NaN is refused in
+    the optional columns too."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    good = radars.column(column).to_pylist() if column in radars.column_names else [None, None]
+    radars = with_radar_column(radars, column, [good[0], value])
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
+    with pytest.raises(io.InputError) as error:
+        plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
+    assert str(error.value).startswith(f"{radar_path}: column '{column}' must be ")
+    assert f"row 1 is {float(value)!r} (1 of 2 rows bad)" in str(error.value)
+
+
+def test_bad_input_exits_2_and_leaves_an_earlier_output_alone(params, tmp_path, filters_only, caplog):
+    """`track` on plots with an infinite range: exit 2, the file, column and row in the log, and the
+    output of an earlier run (and its summary) untouched."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    out = tmp_path / "tracks.parquet"
+    out.write_bytes(b"earlier run")
+    summary = tmp_path / "tracks.summary.json"
+    summary.write_text("{}")
+    assert track_command(tmp_path, filters_only, "kalman_cv", with_values(plots, "range_m", [3], np.inf), radars) == 2
+    assert "plots.parquet: column 'range_m' must be in (0, 2000000]: row 3 is inf" in caplog.text
+    assert out.read_bytes() == b"earlier run" and summary.read_text() == "{}"
+
+
+def test_a_repeated_plot_id_names_the_value_and_its_rows(params, tmp_path):
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(7))
+    ids = plots.column("plot_id").to_numpy()
+    plots_path, radar_path = tf.write_recording(tmp_path, with_values(plots, "plot_id", [4, 11], ids[2]), radars)
+    with pytest.raises(io.InputError, match=rf"plot_id {ids[2]} is listed 3 times \(rows 2, 4, 11\); 2 rows repeat "
+                                            r"an earlier plot_id \(column 'plot_id' must be unique") as error:
+        plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
+    assert str(error.value).startswith(str(plots_path))
+
+
+@pytest.mark.parametrize("second_site", [None, SECOND_SITE], ids=["identical rows", "two sites"])
+def test_a_radar_listed_twice_is_refused_whether_or_not_the_rows_agree(params, tmp_path, second_site):
+    """Two rows for radar 1: which one was meant cannot be told from the file, so even identical rows
+    are refused (one row per radar)."""
+    plots, _, _ = two_radar_recording(params, np.random.default_rng(8))
+    plots = plots.filter(pa.compute.equal(plots.column("radar_id"), 1))
+    twin = params.radar if second_site is None else tf.radar_at(params.radar, *second_site)
+    radars = pa.concat_tables([tf.radar_table(1, params.radar), tf.radar_table(1, twin)])
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
+    with pytest.raises(io.InputError, match=r"radar.parquet: radar_id 1 is listed 2 times \(rows 0, 1\)"):
+        plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
+
+
+def test_a_radars_own_error_figures_override_params_for_that_radar_only(params, tmp_path):
+    """sigma_* columns in the radar description, given for radar 2 and null for radar 1: radar 2's plots
+    get the covariance of its own errors, radar 1's that of params' `radar`."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(9))
+    own = {"sigma_range_m": 120.0, "sigma_azimuth_deg": 0.2, "sigma_altitude_m": 60.0}
+    for column, value in own.items():
+        radars = with_radar_column(radars, column, [None, value])
+    table = plot_table.read_parquet_plots(*tf.write_recording(tmp_path, plots, radars), params.radar)
+    second = dataclasses.replace(tf.radar_at(params.radar, *SECOND_SITE), **own)
+    assert table.radars[2] == second and table.radars[1] == params.radar
+    for radar_id, radar in ((1, params.radar), (2, second)):
+        rows = table.radar_id == radar_id
+        np.testing.assert_allclose(table.covariance[rows], baselines.measurement_covariance(table.position[rows], radar),
+                                   rtol=1e-12)
+
+
+def shifted(plots: pa.Table, rows: slice, seconds: float) -> pa.Table:
+    """The recording with the times of `rows` moved by `seconds`."""
+    times = plots.column("time_unix_s").to_numpy().copy()
+    times[rows] += seconds
+    return with_column(plots, "time_unix_s", times)
+
+
+def test_a_backward_day_jump_within_a_radar_is_refused_as_a_day_error(params, tmp_path, filters_only, caplog):
+    """The plots from row 40 on a day early (a time of day added to the date of the first plot, across
+    midnight): exit 2 naming the file, column time_unix_s, the row and the jump back from the latest
+    earlier plot of its radar, and how many plots jumped; no output."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(10))
+    plots = plots.take(np.argsort(plots.column("time_unix_s").to_numpy(), kind="stable"))
+    times, radar_ids = plots.column("time_unix_s").to_numpy(), plots.column("radar_id").to_numpy()
+    jump = times[:40][radar_ids[:40] == radar_ids[40]].max() - (times[40] - 86400.0)
+    assert track_command(tmp_path, filters_only, "kalman_cv", shifted(plots, slice(40, None), -86400.0), radars) == 2
+    assert (f"plots.parquet: column 'time_unix_s' jumps back {jump:.0f} s at row 40 "
+            f"({float(times[40] - 86400.0)!r}) within the plots of radar {radar_ids[40]}, scenario 7" in caplog.text)
+    assert f"({plots.num_rows - 40} of {plots.num_rows} rows more than 3600 s earlier" in caplog.text
+    assert "probably a day error" in caplog.text
+    assert not (tmp_path / "tracks.parquet").exists()
+
+
+def test_plots_out_of_order_are_counted_by_plots_moved_and_the_largest_step(params, tmp_path, caplog):
+    """A recording written radar by radar (radar 2's scans interleave radar 1's, 3 s later) and with
+    radar 1's plots 10..19 moved after 20..29: sorted, and the warning counts the plots earlier than a
+    plot before them (not the backward steps) and gives the largest step back. Radar 2's plots, two
+    hours before radar 1's last ones, are no day error: each radar's own plots are in order."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(11))
+    by_radar = [plots.filter(pa.compute.equal(plots.column("radar_id"), r)) for r in (1, 2)]
+    first = by_radar[0].take(np.r_[0:10, 20:30, 10:20, 30:by_radar[0].num_rows])
+    second = shifted(by_radar[1], slice(None), -7200.0)
+    recording = pa.concat_tables([first, second])
+    times = recording.column("time_unix_s").to_numpy()
+    latest = np.maximum.accumulate(times)
+    moved, largest = int((times < latest).sum()), float((latest - times).max())
+    assert moved == 10 + second.num_rows
+    with caplog.at_level("WARNING", logger="pipeline"):
+        table = plot_table.read_parquet_plots(*tf.write_recording(tmp_path, recording, radars), params.radar)
+    assert (np.diff(table.time) >= 0).all() and len(table) == recording.num_rows
+    assert f"{moved} plots out of time order (up to {largest:.1f} s earlier than a plot before them)" in caplog.text
+
+
+def test_twins_of_earlier_plots_are_dropped_and_counted_beside_what_the_reader_skipped(params):
+    """plot_table on a recording with each of radar 1's first five plots given again under new plot ids
+    (as from a second, redundant network), and one plot copied to the other radar: the five twins are
+    dropped (the first of each pair kept), the copy for another radar kept; the reader's own counts
+    (`skipped`) are carried beside "duplicate plot"."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(12))
+    first_five = plots.filter(pa.compute.equal(plots.column("radar_id"), 1)).slice(0, 5)
+    twins = with_column(first_five, "plot_id", np.arange(90000, 90005))
+    elsewhere = with_column(with_values(first_five.slice(0, 1), "radar_id", [0], 2), "plot_id", np.array([90009]))
+    table = plot_table.plot_table(pa.concat_tables([plots, twins, elsewhere]),
+                                  plot_table.sensors(radars, params.radar), "test", skipped={"no position": 3})
+    assert table.skipped == {"no position": 3, "duplicate plot": 5}
+    assert len(table) == plots.num_rows + 1
+    assert not np.isin(np.arange(90000, 90005), table.plot_id).any() and 90009 in table.plot_id
+
+
+def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_path, filters_only):
+    """Every plot given twice, each twin right after its plot with its own plot id: the same track
+    file as the recording once, and the summary counts the twins."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(13))
+    twins = with_column(plots, "plot_id", plots.column("plot_id").to_numpy() + 100000)
+    twice = pa.concat_tables([plots, twins]).take(np.repeat(np.arange(plots.num_rows), 2)
+                                                  + np.tile([0, plots.num_rows], plots.num_rows))
+    assert track_command(tmp_path / "once", filters_only, "kalman_cv", plots, radars) == 0
+    assert track_command(tmp_path / "twice", filters_only, "kalman_cv", twice, radars) == 0
+    once = pq.read_table(tmp_path / "once" / "tracks.parquet").to_pandas()
+    assert pq.read_table(tmp_path / "twice" / "tracks.parquet").to_pandas().equals(once)  # NaN equal to NaN
+    assert (once["status"] == "confirmed").any()
+    summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
+    assert summary["skipped"] == {"duplicate plot": plots.num_rows} and summary["plots_tracked"] == plots.num_rows
