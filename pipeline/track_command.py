@@ -15,16 +15,18 @@ own, the plots of all its radars together.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from datetime import date
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import asterix_io, geodesy, io, plot_table
-from pipeline.params import Params
+from pipeline.params import Params, Radar, TrackerParams
 from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
@@ -53,16 +55,24 @@ TRACK_SCHEMA = io.schema(
 )
 
 
+def recording_tracker_params(tracker: TrackerParams, radars: Mapping[int, Radar]) -> TrackerParams:
+    """The tracker's params for a recording of `radars`: M-of-N's opportunity is the recording's own
+    antenna scan (the shortest scan period of its radars: a track seen by several radars can be hit
+    that often), not the scan of params' `radar`, which describes the simulated one."""
+    return dataclasses.replace(tracker, opportunity_s=min(radar.scan_period_s for radar in radars.values()))
+
+
 def track_recording(plots: Plots, method: str, window_m: float, params: Params, models_dir: Path) -> pa.Table:
     """Track every scenario of a recording with `method`; one row per track update (TRACK_SCHEMA),
     `range_m` the range from the plot's radar to the track's position."""
     models = load_models(models_dir, params, [method])
-    management = registry.management(params.tracker.management, params.tracker)
+    tracker_params = recording_tracker_params(params.tracker, plots.radars)
+    management = registry.management(tracker_params.management, tracker_params)
     sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in plots.radars.items()}
     parts = []
     for scenario_id, scenario in plots.scenarios():
         seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]
-        updates = track(scenario, registry.compose(method, models, params.tracker, window_m, seed))
+        updates = track(scenario, registry.compose(method, models, tracker_params, window_m, seed))
         states = positions(updates)
         site = np.array([sites[r] for r in updates["radar_id"].tolist()]).reshape(-1, 3)
         lat, lon, alt = geodesy.ecef_to_geodetic(states)

@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline import baselines, cli, geodesy, io, plot_table
+from pipeline.track_command import recording_tracker_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from tests import tracker_fixtures as tf
@@ -341,3 +342,15 @@ def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_pat
     assert (once["status"] == "confirmed").any()
     summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
     assert summary["skipped"] == {"duplicate plot": plots.num_rows} and summary["plots_tracked"] == plots.num_rows
+
+
+def test_m_of_n_counts_opportunities_in_the_recordings_own_scans(params):
+    """M-of-N's opportunity is the recording's antenna scan, not params' radar's: 10 s for a radar
+    that turns at 6 rpm, the shorter scan when two radars are tracked together."""
+    slow = tf.radar_at(params.radar, *SECOND_SITE)
+    slow = dataclasses.replace(slow, rotation_rpm=6.0)
+    assert params.tracker.opportunity_s == pytest.approx(params.radar.scan_period_s)
+    assert recording_tracker_params(params.tracker, {1: slow}).opportunity_s == pytest.approx(10.0)
+    both = recording_tracker_params(params.tracker, {1: slow, 2: params.radar})
+    assert both.opportunity_s == pytest.approx(params.radar.scan_period_s)
+    assert dataclasses.replace(both, opportunity_s=params.tracker.opportunity_s) == params.tracker
