@@ -151,14 +151,16 @@ def holdout_table(holdout: dict) -> str:
 
 
 def tuning_table(tuning: dict) -> str:
-    lines = [f"| filter | process noise | velocity spread (m/s) | {tuning['cost']} before | after | RMSE (m) | "
-             "raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % | target plots outside the gate |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [f"| filter | process noise | velocity spread (m/s) | model switch probability | {tuning['cost']} before | "
+             "after | RMSE (m) | raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % | "
+             "target plots outside the gate |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, values in tuning["filters"].items():
         after = values["after"]
+        switching = f"{values['switch_probability']:.3g}" if len(values["noise_std"]) > 1 else "-"
         lines.append(
             f"| {FILTER_LABELS[kind]} | {', '.join(f'{v:.3g}' for v in values['noise_std'])} | "
-            f"{values['velocity_std_mps']:.0f} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
+            f"{values['velocity_std_mps']:.0f} | {switching} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
             f"{after['rmse_m']:.1f} | {after['plot_rmse_m']:.1f} | {after['anees']:.3f} | "
             f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} | "
             f"{after['gate_misses']:.2%} (gate allows {after['gate_allowance']:.1%}) |")

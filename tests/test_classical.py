@@ -24,6 +24,7 @@ from scipy.stats import binom, chi2
 from pipeline import (baselines, batch_filters, classical_filters, geodesy, io, motion_models, ospa, routes, simulate,
                       tuning)
 from pipeline.classical_filters import FilterSettings
+from pipeline.compare_stage import tuning_table
 from pipeline.params import ParamError, parse_params
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tune_stage import run_tune
@@ -579,6 +580,11 @@ def test_tune_stage_saves_tuned_filters_and_a_report(simulated_split, tracking_u
         entry = report["filters"][kind]
         assert entry["cost_after"] <= entry["cost_before"]
         assert entry["noise_std"] == list(filters[kind].noise_std)
+        assert entry["switch_probability"] == filters[kind].switch_probability
+    table = tuning_table(report).splitlines()
+    imm_row = next(line for line in table if line.startswith("| IMM"))
+    assert "model switch probability" in table[0] and f"| {filters['imm'].switch_probability:.3g} |" in imm_row
+    assert "| - |" in next(line for line in table if line.startswith("| Kalman CV"))
     client = mlflow.MlflowClient(tracking_uri=tracking_uri)
     runs = client.search_runs([client.get_experiment_by_name(params.training.experiment).experiment_id])
     assert len(runs) == 1 and runs[0].data.tags["stage"] == "tune_kalman"
