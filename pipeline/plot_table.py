@@ -119,8 +119,11 @@ def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
     return out
 
 
-def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plots:
-    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id.
+def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str,
+               skipped: Mapping[str, int] | None = None) -> Plots:
+    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id; `skipped`, what
+    reading the recording already left out by reason (the ASTERIX decoder's), carried into
+    `Plots.skipped` with this table's own counts.
 
     Raises io.InputError naming `source` and the radar id when a plot's radar is not described."""
     radar_ids = plots.column("radar_id").to_numpy()
@@ -145,7 +148,8 @@ def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str) -> Plo
         covariance[rows] = baselines.measurement_covariance(position[rows], radar)
     target = table.column("target_id")
     return Plots(table.column("plot_id").to_numpy(), radar_ids, scenario_ids[order], times[order], position, range_m,
-                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars))
+                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars),
+                 dict(skipped or {}))
 
 
 def _count_out_of_order(times: np.ndarray, scenario_ids: np.ndarray) -> int:
@@ -162,12 +166,18 @@ def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plot
     return plot_table(plots, sensors(radars, radar), str(plots_path))
 
 
-def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar) -> Plots:
-    """Plots of ASTERIX CAT048 files with CAT034 north markers (the radars' sites, I034/120, and
-    scan periods, I034/041), given in time order; `first_date` is the UTC date of the first record."""
-    plots, radars = asterix_io.decode(paths, first_date)
+def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar, radar_path: Path | None = None) -> Plots:
+    """Plots of ASTERIX CAT048 files given in time order; `first_date` is the UTC date of the first
+    record. The radars' sites come from the description at `radar_path` (RADAR_INPUT_SCHEMA) where
+    it lists the radar, else from CAT034 I034/120 (`asterix_io.with_radar_description`). What the
+    decoder left out is counted in `Plots.skipped`."""
+    source = ", ".join(str(p) for p in paths)
+    description = (io.read_parquet(radar_path, RADAR_INPUT_SCHEMA, optional=("scan_period_s",))
+                   if radar_path is not None else None)
+    recording = asterix_io.with_radar_description(asterix_io.decode(paths, first_date), description, source)
+    plots = recording.plots
     for name in OPTIONAL_PLOT_COLUMNS:
         plots = plots.append_column(name, pa.nulls(plots.num_rows, pa.int32()))
     return plot_table(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA),
-                      sensors(radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar),
-                      ", ".join(str(p) for p in paths))
+                      sensors(recording.radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar),
+                      source, recording.skipped)
