@@ -288,8 +288,7 @@ def _read_plot(record: object, where: str) -> tuple[int, float, float, float, fl
     the reason it is not a plot the tracker can place."""
     radar_id = _radar_id(record, "I048/010", where)
     time_of_day = _value(_item(record, "I048/140", where), "I048/140", "s", where)
-    items = {name: record.get_item(name) for name in ("020", "040", "090", "170")}
-    variation = {name: item.variation if item is not None else None for name, item in items.items()}
+    variation = {name: getattr(record.get_item(name), "variation", None) for name in ("020", "040", "090", "170")}
     if variation["040"] is None:
         return NO_POSITION
     if _flag(variation["020"], "TYP") == NO_DETECTION:
@@ -302,8 +301,8 @@ def _read_plot(record: object, where: str) -> tuple[int, float, float, float, fl
         return NO_FLIGHT_LEVEL
     if _flag(variation["090"], "G") or _flag(variation["090"], "V"):
         return INVALID_FLIGHT_LEVEL
-    return radar_id, time_of_day, range_nm * NAUTICAL_MILE_M, azimuth, _value(variation["090"], "I048/090 FL", "FL",
-                                                                            where)
+    level = _value(variation["090"], "I048/090 FL", "FL", where)
+    return radar_id, time_of_day, range_nm * NAUTICAL_MILE_M, azimuth, level
 
 
 def _read_radar(record: object, where: str, radars: dict[int, dict]) -> None:
