@@ -58,3 +58,14 @@ def unix_from_time_of_day(time_of_day_s: np.ndarray, reference_unix_s: np.ndarra
     candidate = np.floor(reference / SECONDS_PER_DAY) * SECONDS_PER_DAY + np.asarray(time_of_day_s, dtype=float)
     offset = np.round((reference - candidate) / SECONDS_PER_DAY) * SECONDS_PER_DAY
     return candidate + offset
+
+
+def unwrap_time_of_day(time_of_day_s: np.ndarray) -> np.ndarray:
+    """Seconds since the midnight before the first time of day, each on the day nearest the one
+    before it.
+
+    A radar sends its plots in azimuth order, so plots of one scan interleave around midnight
+    (86399.9, 0.05, 86399.97, 0.2): a backward jump of more than 12 h is the next day, a forward
+    jump of more than 12 h a return to the day before, and no plot moves by a day.
+    """
+    return np.unwrap(np.asarray(time_of_day_s, dtype=float), period=SECONDS_PER_DAY)

@@ -74,7 +74,7 @@ def _track(args: argparse.Namespace) -> None:
     from pipeline.track_command import run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
-              date.fromisoformat(args.date) if args.date else None, args.method, args.window, Path(args.models),
+              args.date, args.method, args.window, Path(args.models),
               Path(args.out))
 
 
@@ -149,6 +149,14 @@ COMMANDS = {
 }
 
 
+def _iso_date(text: str) -> date:
+    """--date checked where it is parsed, so a wrong date is a usage error (exit 2), not a traceback."""
+    try:
+        return date.fromisoformat(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date (YYYY-MM-DD): {error}") from None
+
+
 def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:
     if isinstance(option, tuple):
         command.add_argument("--out", default=option[1], help="output folder (default: %(default)s)")
@@ -160,9 +168,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
     elif option == "recording":
         command.add_argument("--plots", help="plots Parquet (the schema `simulate` writes; truth columns optional)")
         command.add_argument("--radar", help="radar description Parquet (radar_id, latitude_deg, longitude_deg, "
-                                             "height_m; optionally scan_period_s), one row per radar")
+                                             "height_m; optionally scan_period_s), one row per radar; with "
+                                             "--asterix it supplies or overrides the CAT034 radar positions")
         command.add_argument("--asterix", action="append", help="ASTERIX CAT048 + CAT034 file (repeatable)")
-        command.add_argument("--date", help="UTC date of the first ASTERIX record, YYYY-MM-DD")
+        command.add_argument("--date", type=_iso_date, help="UTC date of the first ASTERIX record, YYYY-MM-DD")
         command.add_argument("--method", default="via", choices=TRACKERS,
                              help="tracking method (default: %(default)s); the classical ones ("
                                   + ", ".join(name for name in TRACKERS if METHODS[name].family == CLASSICAL)

@@ -204,12 +204,25 @@ def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plot
     return plot_table(plots, sensors(radars, radar), str(plots_path))
 
 
-def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar) -> Plots:
-    """Plots of ASTERIX CAT048 files with CAT034 north markers (the radars' sites, I034/120, and
-    scan periods, I034/041), given in time order; `first_date` is the UTC date of the first record."""
-    plots, radars = asterix_io.decode(paths, first_date)
+def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar, radar_path: Path | None = None) -> Plots:
+    """Plots of ASTERIX CAT048 files given in time order; `first_date` is the UTC date of the first
+    record. The radars' sites come from the description at `radar_path` (RADAR_FILE_SCHEMA, checked
+    as for Parquet input) where it lists the radar, else from CAT034 I034/120
+    (`asterix_io.with_radar_description`); a described radar's own error figures apply to its plots.
+    What the decoder left out is counted in `Plots.skipped`."""
+    source = ", ".join(str(p) for p in paths)
+    description = None
+    if radar_path is not None:
+        description = io.read_parquet(radar_path, RADAR_FILE_SCHEMA, optional=OPTIONAL_RADAR_COLUMNS)
+        input_checks.check_radars(description, radar_path)
+    recording = asterix_io.with_radar_description(asterix_io.decode(paths, first_date), description, source)
+    plots = recording.plots
     for name in OPTIONAL_PLOT_COLUMNS:
         plots = plots.append_column(name, pa.nulls(plots.num_rows, pa.int32()))
-    return plot_table(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA),
-                      sensors(radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar),
-                      ", ".join(str(p) for p in paths))
+    radars = sensors(recording.radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar)
+    if description is not None:
+        described = sensors(description, radar)
+        radars = {radar_id: dataclasses.replace(site, **{name: getattr(described[radar_id], name)
+                                                         for name in RADAR_ERROR_COLUMNS})
+                  if radar_id in described else site for radar_id, site in radars.items()}
+    return plot_table(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA), radars, source, recording.skipped)

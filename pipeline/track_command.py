@@ -116,7 +116,9 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
-        plots = plot_table.read_asterix_plots(asterix_paths, first_date, params.radar)
+        if plots_path is not None:
+            raise io.InputError("give --plots (Parquet) or --asterix files, not both")
+        plots = plot_table.read_asterix_plots(asterix_paths, first_date, params.radar, radar_path)
     else:
         if plots_path is None or radar_path is None:
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")

@@ -8,6 +8,7 @@ resolution of each item.
 
 from __future__ import annotations
 
+import json
 from datetime import date, datetime, timezone
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import pytest
 
 from pipeline import asterix_io, asterix_units as units, cli, io, simulate
 from pipeline.io import InputError
-from pipeline.plot_table import read_asterix_plots
+from pipeline.plot_table import RADAR_INPUT_SCHEMA, read_asterix_plots
 from tests import tracker_fixtures as tf
 from tests.project import run_pipeline, tiny_params_tree, write_params
 
@@ -67,8 +68,8 @@ def recording(tmp_path_factory) -> tuple[pa.Table, Path]:
 
 def test_round_trip_keeps_every_plot_to_the_item_resolutions(recording):
     plots, path = recording
-    decoded, radars = asterix_io.decode(path, DAY)
-    assert decoded.num_rows == plots.num_rows
+    decoded, _, skipped = asterix_io.decode(path, DAY)
+    assert decoded.num_rows == plots.num_rows and skipped == {}
     column = lambda table, name: table.column(name).to_numpy()  # noqa: E731
     np.testing.assert_array_equal(column(decoded, "plot_id"), np.arange(plots.num_rows))
     np.testing.assert_array_equal(column(decoded, "radar_id"), 3 * 256 + 7)
@@ -88,7 +89,7 @@ def test_round_trip_keeps_every_plot_to_the_item_resolutions(recording):
 
 def test_radar_position_and_id_come_from_the_north_markers(recording):
     """I034/120 to its resolution (180/2^23 deg, 1 m), I034/041 the rotation period, SAC/SIC the id."""
-    _, radars = asterix_io.decode(recording[1], DAY)
+    _, radars, _ = asterix_io.decode(recording[1], DAY)
     assert radars.num_rows == 1
     radar = radars.to_pylist()[0]
     assert (radar["radar_id"], radar["sac"], radar["sic"]) == (775, 3, 7)
@@ -104,7 +105,7 @@ def test_recording_crossing_midnight_decodes_to_increasing_times(tmp_path):
     rng = np.random.default_rng(3)
     times = MIDNIGHT + 86400.0 - 30.0 + np.arange(15) * 6.0 + 0.3
     path = write(tmp_path / "midnight.ast", asterix_io.encode(quantised_plots(times, rng), RADAR, scan_starts(times)))
-    decoded, _ = asterix_io.decode(path, DAY)
+    decoded, _, _ = asterix_io.decode(path, DAY)
     unix = decoded.column("time_unix_s").to_numpy()
     assert (np.diff(unix) > 0).all()
     np.testing.assert_allclose(unix, times, rtol=0.0, atol=units.TIME_OF_DAY_STEP_S)
@@ -149,6 +150,250 @@ def test_damaged_file_is_an_input_error_naming_the_file(recording, tmp_path, dam
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(InputError, match=f"{tmp_path / 'none.ast'}: file not found"):
         asterix_io.decode(tmp_path / "none.ast", DAY)
+
+
+# ----------------------------------------------------------------------------- records that are not plots
+# Recordings built record by record with the project's encoder (asterix_io.plot_items, marker_items,
+# datablock), changed item by item where a test needs a record the simulator never sends.
+
+SECOND = {**RADAR, "sic": 8, "latitude_deg": RADAR["latitude_deg"] + 0.5}  # a second radar, 55 km north
+
+
+def target(radar: dict, scans: int, start_s: float = MIDNIGHT + 36000.0) -> list[dict]:
+    """A straight radial target at FL350 from 30 km, 1 km per 6 s scan at azimuth 45 deg: one plot per scan."""
+    return [asterix_io.plot_items(radar, start_s + 6.0 * scan, 30000.0 + 1000.0 * scan, 45.0, 350.0)
+            for scan in range(scans)]
+
+
+def changed(items: dict, **changes) -> dict:
+    """`items` with items replaced (a value) or removed (None), e.g. changed(plot, i040=None)."""
+    out = dict(items)
+    for name, value in changes.items():
+        out.pop(name[1:], None)
+        if value is not None:
+            out[name[1:]] = value
+    return out
+
+
+def recording_of(path: Path, plots: list[dict], radar: dict = RADAR, marker: dict | None = None) -> Path:
+    """A CAT034 north marker (`marker`, else the radar's with I034/041 and I034/120), then the plots in one CAT048 block."""
+    marker = marker if marker is not None else asterix_io.marker_items(radar, MIDNIGHT + 36000.0)
+    return write(path, asterix_io.datablock(34, [marker]) + asterix_io.datablock(48, plots))
+
+
+def report(typ: int) -> tuple:
+    """I048/020 with the report type TYP."""
+    return ((("TYP", typ), ("SIM", 0), ("RDP", 0), ("SPI", 0), ("RAB", 0), None),)
+
+
+def flight_level(fl: float, v: int = 0, g: int = 0) -> tuple:
+    """I048/090 with its validated (V) and garbled (G) bits."""
+    return (("V", v), ("G", g), ("FL", (fl, "FL")))
+
+
+TRACK_END = ((("CNF", 0), ("RAD", 0), ("DOU", 0), ("MAH", 0), ("CDM", 0), None),
+             (("TRE", 1), ("GHO", 0), ("SUP", 0), ("TCC", 0), 0, None))  # I048/170 with TRE=1
+
+
+def test_records_without_a_position_or_altitude_are_skipped_and_counted_in_one_warning(tmp_path, caplog):
+    """CAT048 ed. 1.32: I048/040 is sent only with a detection; I048/020 TYP=0 is no detection, I048/170
+    TRE=1 a track's last report (case 01's two track-end records have all three); I048/090 absent,
+    garbled (G) or not validated (V) gives no altitude. Each is left out and counted by reason, the
+    other plots decode; `read_asterix_plots` carries the counts in Plots.skipped."""
+    plots = target(RADAR, 10)
+    plots[1] = changed(plots[1], i040=None, i020=report(0), i170=TRACK_END)
+    plots[2] = changed(plots[2], i040=None)
+    plots[3] = changed(plots[3], i020=report(0))
+    plots[4] = changed(plots[4], i170=TRACK_END)
+    plots[5] = changed(plots[5], i090=None)
+    plots[6] = changed(plots[6], i090=flight_level(1000.0, g=1))
+    plots[7] = changed(plots[7], i090=flight_level(0.0, v=1))
+    path = recording_of(tmp_path / "skips.ast", plots)
+    decoded, _, skipped = asterix_io.decode(path, DAY)
+    assert skipped == {asterix_io.NO_POSITION: 2, asterix_io.NOT_DETECTED: 1, asterix_io.ENDED: 1,
+                       asterix_io.NO_FLIGHT_LEVEL: 1, asterix_io.INVALID_FLIGHT_LEVEL: 2}
+    np.testing.assert_allclose(decoded.column("range_m").to_numpy(), [30000.0, 38000.0, 39000.0],
+                               atol=units.RANGE_STEP_M)
+    np.testing.assert_array_equal(decoded.column("flight_level").to_numpy(), 350.0)
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and warnings[0].startswith(f"{path}: skipped ")
+    assert all(f"{count} {reason}" in warnings[0] for reason, count in skipped.items())
+    assert read_asterix_plots([path], DAY, tf.make_params().radar).skipped == skipped
+
+
+def test_garbled_and_unvalidated_flight_levels_leave_the_target_one_confirmed_track(tmp_path):
+    """Case 04's kind: a straight target with one garbled (G=1, FL 1000) and one not validated (V=1,
+    FL 0) plot. Both are dropped, so neither is placed kilometres off: `track --method kalman_cv` with
+    only the tuned filters gives one confirmed track through the other plots, and the summary counts
+    the two."""
+    plots = target(RADAR, 12)
+    plots[5] = changed(plots[5], i090=flight_level(1000.0, g=1))
+    plots[8] = changed(plots[8], i090=flight_level(0.0, v=1))
+    path = recording_of(tmp_path / "garbled.ast", plots)
+    tracks, summary = track_asterix(tmp_path, [path], "kalman_cv")
+    assert tracks.column("plot_id").to_pylist() == list(range(10))  # the 10 plots kept, numbered in time order
+    assert set(tracks.column("track_id").to_pylist()) == {0}
+    assert tracks.column("status").to_pylist()[-1] == "confirmed"
+    assert summary["skipped"] == {asterix_io.INVALID_FLIGHT_LEVEL: 2} and summary["confirmed_tracks"] == 1
+
+
+def track_asterix(folder: Path, paths: list[Path], method: str, *options: str, day: str = DAY.isoformat()
+                  ) -> tuple[pa.Table, dict]:
+    """`track --asterix` with default params and only the tuned filters: its output and summary."""
+    params_path = write_params(tf.params_tree(), folder / "params.yaml")
+    models = tf.write_tuned_filters(folder / "models", tf.make_params())
+    out = folder / "tracks.parquet"
+    code = cli.main(["track", "--params", str(params_path), *(f"--asterix={p}" for p in paths), "--date", day,
+                     "--models", str(models), "--method", method, *options, "--out", str(out)])
+    assert code == 0
+    return pq.read_table(out), json.loads(out.with_name("tracks.summary.json").read_text())
+
+
+@pytest.mark.parametrize("item, value, change", [
+    ("I048/140", "90000 s", {"i140": (90000.0, "s")}),
+    ("I048/090 FL", "1300 FL", {"i090": flight_level(1300.0)}),
+    ("I048/090 FL", "-20 FL", {"i090": flight_level(-20.0)}),
+])
+def test_a_plot_value_the_standard_does_not_allow_names_file_block_record_and_item(tmp_path, item, value, change):
+    """CAT048 ed. 1.32: time of day in [0, 86400) s (I048/140), flight level -12..1270 FL (I048/090)."""
+    plots = target(RADAR, 3)
+    plots[2] = changed(plots[2], **change)
+    path = recording_of(tmp_path / "bad.ast", plots)
+    marker_bytes = len(asterix_io.datablock(34, [asterix_io.marker_items(RADAR, MIDNIGHT + 36000.0)]))
+    with pytest.raises(InputError, match=rf"{path}: datablock 1 \(CAT048\) at byte {marker_bytes}, record 2: "
+                                         rf"item {item} is {value}, outside"):
+        asterix_io.decode(path, DAY)
+
+
+@pytest.mark.parametrize("item, value, change", [
+    ("I034/120 LAT", "95 °", {"LAT": 95.0}),
+    ("I034/120 HGT", "12000 m", {"HGT": 12000.0}),
+    ("I034/041", "0 s", {"period": 0.0}),
+])
+def test_a_north_marker_value_the_standard_does_not_allow_exits_2_naming_it(tmp_path, caplog, item, value, change):
+    """CAT034 ed. 1.29: latitude -90..90 deg (I034/120), a radar site's height on Earth, a rotation
+    period above 0 (I034/041). `track` exits 2 with the file, block, record and item, and writes nothing."""
+    radar = {**RADAR, "latitude_deg": change.get("LAT", RADAR["latitude_deg"]),
+             "height_m": change.get("HGT", RADAR["height_m"]), "scan_period_s": change.get("period", 6.0)}
+    path = recording_of(tmp_path / "bad.ast", target(RADAR, 3), marker=asterix_io.marker_items(radar, MIDNIGHT))
+    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
+    out = tmp_path / "tracks.parquet"
+    code = cli.main(["track", "--params", str(params_path), "--asterix", str(path), "--date", DAY.isoformat(),
+                     "--method", "kalman_cv", "--models", str(tmp_path), "--out", str(out)])
+    assert code == 2 and not out.exists()
+    assert f"{path}: datablock 0 (CAT034) at byte 0, record 0: item {item} is {value}, outside" in caplog.text
+
+
+@pytest.mark.parametrize("missing, item", [("i010", "I048/010"), ("i140", "I048/140")])
+def test_a_record_without_a_mandatory_item_names_it(tmp_path, missing, item):
+    """Case 16's kind: every CAT048 record carries I048/010 and I048/140; a record without one (as a
+    corrupt FSPEC reads) is named by block, byte offset, record and item, not by a Python error text."""
+    plots = target(RADAR, 2)
+    plots[0] = changed(plots[0], **{missing: None})
+    path = write(tmp_path / "broken.ast", asterix_io.datablock(48, plots))
+    with pytest.raises(InputError, match=rf"{path}: datablock 0 \(CAT048\) at byte 0, record 0: item {item} missing"):
+        asterix_io.decode(path, DAY)
+
+
+def test_datablocks_of_other_categories_are_counted_by_category(tmp_path, caplog):
+    """Case 17's kind: CAT062 tracks, CAT001 plots or a corrupted category byte are not read, but their
+    datablocks are counted by category (in the one warning line), so plots that vanish are visible."""
+    marker = asterix_io.datablock(34, [asterix_io.marker_items(RADAR, MIDNIGHT + 36000.0)])
+    block = asterix_io.datablock(48, target(RADAR, 4))
+    path = write(tmp_path / "mixed.ast", marker + block + bytes([62]) + block[1:] + bytes([1]) + block[1:] +
+                 bytes([62]) + block[1:])
+    decoded, _, skipped = asterix_io.decode(path, DAY)
+    assert decoded.num_rows == 4
+    assert skipped == {"datablock CAT062": 2, "datablock CAT001": 1}
+    assert "skipped 1 datablock CAT001, 2 datablock CAT062" in caplog.text
+
+
+# ----------------------------------------------------------------------------- midnight, in azimuth order
+
+def test_plots_interleaved_around_midnight_each_go_on_the_day_nearest_the_plot_before(tmp_path):
+    """Case 03's kind: a radar sends plots in azimuth order, so times of day interleave at midnight
+    (86399.5, 86399.9, 0.0547, 86399.969, 0.2, 0.5 with --date 2026-01-01). Each plot goes on the day
+    nearest the one before it, both ways, so no plot jumps a day and the target is one track."""
+    tod = np.array([86399.5, 86399.9, 0.0547, 86399.969, 0.2, 0.5])
+    midnight = datetime(2026, 1, 1, tzinfo=timezone.utc).timestamp()
+    expected = midnight + np.where(tod > 43200.0, tod, tod + 86400.0)
+    first = expected.min()  # the target flies 250 m/s radially; each plot where it was at its time
+    plots = [asterix_io.plot_items(RADAR, t, 50000.0 + 250.0 * (t - first), 10.0, 300.0) for t in expected]
+    path = recording_of(tmp_path / "midnight.ast", plots, marker=asterix_io.marker_items(RADAR, midnight + 86390.0))
+    decoded, _, _ = asterix_io.decode(path, date(2026, 1, 1))
+    np.testing.assert_allclose(decoded.column("time_unix_s").to_numpy(), expected, rtol=0.0,
+                               atol=units.TIME_OF_DAY_STEP_S)
+    tracks, _ = track_asterix(tmp_path, [path], "kalman_cv", day="2026-01-01")
+    assert sorted(tracks.column("plot_id").to_pylist()) == list(range(6))
+    assert set(tracks.column("track_id").to_pylist()) == {0}
+
+
+# ----------------------------------------------------------------------------- radar positions: CAT034 and --radar
+
+@pytest.fixture()
+def two_radars(tmp_path) -> Path:
+    """Radars 775 (markers with I034/120) and 776 (markers with I034/041 only; I034/120 is optional), 5 plots each."""
+    without_site = changed(asterix_io.marker_items(SECOND, MIDNIGHT + 36000.0), i120=None,
+                           i041=(4.0, "s"))
+    data = (recording_of(tmp_path / "first.ast", target(RADAR, 5)).read_bytes() +
+            asterix_io.datablock(34, [without_site]) + asterix_io.datablock(48, target(SECOND, 5)))
+    return write(tmp_path / "two_radars.ast", data)
+
+
+def test_plots_of_a_radar_without_position_are_skipped_naming_the_radar(two_radars, caplog):
+    plots = read_asterix_plots([two_radars], DAY, tf.make_params().radar)
+    assert set(plots.radars) == {775} and set(plots.radar_id.tolist()) == {775} and len(plots) == 5
+    assert plots.skipped == {asterix_io.NO_RADAR_POSITION: 5}
+    assert "skipped 5 plots of radar ids [776]: no position" in caplog.text
+
+
+def test_the_radar_option_supplies_and_overrides_positions_with_asterix(two_radars, tmp_path):
+    """`--radar` with `--asterix`: its rows place the radars (775's overriding its I034/120, 776's
+    supplying the missing one); the scan period is the description's, else I034/041's."""
+    description = pa.Table.from_pylist([
+        {"radar_id": 775, "latitude_deg": -33.9, "longitude_deg": 151.2, "height_m": 10.0, "scan_period_s": 5.0},
+        {"radar_id": 776, "latitude_deg": -33.4, "longitude_deg": 151.2, "height_m": 20.0, "scan_period_s": None},
+    ], schema=RADAR_INPUT_SCHEMA)
+    pq.write_table(description, tmp_path / "radars.parquet")
+    plots = read_asterix_plots([two_radars], DAY, tf.make_params().radar, tmp_path / "radars.parquet")
+    assert plots.skipped == {} and len(plots) == 10
+    assert [(r.latitude_deg, r.height_m, r.rotation_rpm) for r in (plots.radars[775], plots.radars[776])] == [
+        (-33.9, 10.0, 12.0), (-33.4, 20.0, 15.0)]
+    _, summary = track_asterix(tmp_path, [two_radars], "kalman_cv", "--radar", str(tmp_path / "radars.parquet"))
+    assert {r: v["plots"] for r, v in summary["radars"].items()} == {"775": 5, "776": 5}
+
+
+def test_the_radar_options_error_figures_and_checks_apply_with_asterix_too(two_radars, tmp_path):
+    """A described radar's own `sigma_range_m` sizes its plots' covariance (776 keeps params'); a
+    description with an impossible value is refused naming the file and column, as for Parquet input."""
+    params = tf.make_params()
+    rows = [{"radar_id": 775, "latitude_deg": -33.9, "longitude_deg": 151.2, "height_m": 10.0,
+             "sigma_range_m": 4 * params.radar.sigma_range_m},
+            {"radar_id": 776, "latitude_deg": -33.4, "longitude_deg": 151.2, "height_m": 20.0, "sigma_range_m": None}]
+    pq.write_table(pa.Table.from_pylist(rows), tmp_path / "radars.parquet")
+    plots = read_asterix_plots([two_radars], DAY, params.radar, tmp_path / "radars.parquet")
+    assert plots.radars[775].sigma_range_m == 4 * params.radar.sigma_range_m
+    assert plots.radars[776].sigma_range_m == params.radar.sigma_range_m
+    rows[1]["latitude_deg"] = 95.0
+    pq.write_table(pa.Table.from_pylist(rows), tmp_path / "bad.parquet")
+    with pytest.raises(InputError, match=r"bad.parquet.*latitude_deg.*95"):
+        read_asterix_plots([two_radars], DAY, params.radar, tmp_path / "bad.parquet")
+
+
+def test_no_radar_position_at_all_is_an_input_error(tmp_path):
+    marker = changed(asterix_io.marker_items(RADAR, MIDNIGHT + 36000.0), i120=None)
+    path = recording_of(tmp_path / "nowhere.ast", target(RADAR, 3), marker=marker)
+    with pytest.raises(InputError, match=rf"{path}: no radar position: no CAT034 message carries I034/120 and no "
+                                         r"--radar"):
+        read_asterix_plots([path], DAY, tf.make_params().radar)
+
+
+def test_an_invalid_date_is_a_usage_error_naming_option_and_value(capsys):
+    """Case 15: argparse refuses it (exit 2) before anything is read."""
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["track", "--asterix", "any.ast", "--date", "2026-13-01", "--out", "tracks.parquet"])
+    assert stop.value.code == 2
+    assert "argument --date: '2026-13-01' is not a date (YYYY-MM-DD)" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- the commands end to end
@@ -197,7 +442,7 @@ def test_exported_scenario_decodes_to_the_simulated_plots(simulated, exported):
     table = simulated["table"]
     order = np.argsort(table.column("time_unix_s").to_numpy(), kind="stable")
     expected = table.take(order)
-    decoded, radars = asterix_io.decode(exported["ast"], date.fromisoformat(simulated["date"]))
+    decoded, radars, _ = asterix_io.decode(exported["ast"], date.fromisoformat(simulated["date"]))
     assert decoded.num_rows == table.num_rows
     for name, step in (("time_unix_s", units.TIME_OF_DAY_STEP_S), ("range_m", units.RANGE_STEP_M),
                        ("azimuth_deg", units.AZIMUTH_STEP_DEG), ("flight_level", units.FLIGHT_LEVEL_STEP),

@@ -34,11 +34,7 @@ def params():
 @pytest.fixture()
 def filters_only(tmp_path: Path, params) -> Path:
     """A models folder with the tuned filters only."""
-    folder = tmp_path / "models"
-    io.write_json({"cost": "rmse", "filters": {kind: settings.to_dict()
-                                               for kind, settings in tf.untuned_filters(params).items()}},
-                  folder / "kalman_tuned.json")
-    return folder
+    return tf.write_tuned_filters(tmp_path / "models", params)
 
 
 def two_radar_recording(params, rng: np.random.Generator) -> tuple[pa.Table, pa.Table, np.ndarray]:

@@ -22,7 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pymap3d
 
-from pipeline import baselines, geodesy, materials, model_eval
+from pipeline import baselines, geodesy, io, materials, model_eval
 from pipeline.model_eval import output_scaler
 from pipeline.model_store import LoadedModel, load_model, save_model
 from pipeline.params import Params, Radar, parse_params
@@ -250,6 +250,15 @@ def trained_models(tmp_path_factory, frame: str | None = None) -> Path:
 def untuned_filters(params: Params) -> dict[str, FilterSettings]:
     """The classical filters at params' start values (tuning is tested on its own)."""
     return {kind: start_settings(kind, params) for kind in KINDS}
+
+
+def write_tuned_filters(folder: Path, params: Params) -> Path:
+    """A models folder holding only `kalman_tuned.json` (the filters at params' start values, written
+    as the tune stage writes them): all the classical methods need."""
+    io.write_json({"cost": "rmse", "filters": {kind: settings.to_dict()
+                                               for kind, settings in untuned_filters(params).items()}},
+                  folder / "kalman_tuned.json")
+    return folder
 
 
 def load_models(folder: Path) -> Models:
