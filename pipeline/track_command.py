@@ -97,18 +97,23 @@ def summary_path(out: Path) -> Path:
 
 def run_summary(plots: Plots, tracks: pa.Table) -> dict:
     """What a user checks first after `track`: the plots tracked, the records or plots left out by
-    reason (`Plots.skipped`), and per radar its plots and confirmed tracks. A track is one
-    (radar, scenario, track id): track ids are only unique within a radar's scenario."""
-    radar_ids = np.asarray(tracks.column("radar_id"))
+    reason (`Plots.skipped`), the confirmed tracks, and per radar its plots and the confirmed tracks
+    it fed. A track is one (scenario, track id): each scenario's radars are tracked together, so a
+    track may hold plots of several radars; it counts once in the total and once for each radar
+    whose plots updated it while confirmed."""
     confirmed = np.asarray(tracks.column("status")) == "confirmed"
-    keys = np.column_stack([radar_ids, np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO)),
-                            np.asarray(tracks.column("track_id"))])[confirmed]
-    distinct = np.unique(keys, axis=0) if len(keys) else keys
-    radars = {int(r): {"plots": int((plots.radar_id == r).sum()),
-                       "confirmed_tracks": int((distinct[:, 0] == r).sum())} for r in sorted(plots.radars)}
+    radar_ids = np.asarray(tracks.column("radar_id"))[confirmed]
+    keys = np.column_stack([np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO))[confirmed],
+                            np.asarray(tracks.column("track_id"))[confirmed]])
+
+    def distinct(rows: np.ndarray) -> int:
+        return len(np.unique(keys[rows], axis=0)) if rows.any() else 0
+
+    radars = {str(r): {"plots": int((plots.radar_id == r).sum()), "confirmed_tracks": distinct(radar_ids == r)}
+              for r in sorted(plots.radars)}
     return {"plots_tracked": len(plots), "skipped": dict(sorted(plots.skipped.items())),
             "plots_skipped": int(sum(plots.skipped.values())), "track_updates": tracks.num_rows,
-            "confirmed_tracks": len(distinct), "radars": {str(r): v for r, v in radars.items()}}
+            "confirmed_tracks": distinct(np.ones(len(keys), bool)), "radars": radars}
 
 
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],

@@ -106,8 +106,8 @@ def test_imm_tracks_a_two_radar_recording_with_only_the_tuned_filters(params, tm
     np.testing.assert_allclose(tracks["range_m"], np.linalg.norm(position - site, axis=1), rtol=1e-12)
 
 
-def test_the_summary_counts_tracks_per_radar_as_radar_scenario_and_track_id(params, tmp_path, filters_only):
-    """Track ids are only unique within a radar's scenario: the same target seen by two radars tracked
+def test_the_summary_counts_tracks_per_radar_as_scenario_and_track_id(params, tmp_path, filters_only):
+    """Track ids are only unique within a scenario: the same target seen by two radars tracked
     apart (each radar in its own scenario, so both start at track 0) is one confirmed track per radar,
     two in all, in `tracks.summary.json` beside the output."""
     plots, radars, target_ids = two_radar_recording(params, np.random.default_rng(2))
@@ -122,6 +122,16 @@ def test_the_summary_counts_tracks_per_radar_as_radar_scenario_and_track_id(para
     assert summary["radars"] == {str(r): {"plots": int((plots.column("radar_id").to_numpy() == r).sum()),
                                           "confirmed_tracks": 1} for r in (1, 2)}
     assert summary["plots_tracked"] == plots.num_rows and summary["skipped"] == {}
+
+
+def test_a_track_fed_by_two_radars_counts_once_in_the_summary_and_once_per_radar(params, tmp_path, filters_only):
+    """Both radars in one scenario are tracked together: the target is one confirmed track holding
+    plots of both, so the summary counts 1 track in all and 1 for each radar."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(2))
+    assert track_command(tmp_path, filters_only, "imm", plots, radars) == 0
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    assert summary["confirmed_tracks"] == 1
+    assert {r: v["confirmed_tracks"] for r, v in summary["radars"].items()} == {"1": 1, "2": 1}
 
 
 @pytest.mark.parametrize("method, missing, stage", [("via", "filter.pt", "train_filter"),
