@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from pipeline import evaluation, gospa, ospa
+from pipeline import compare_stage, evaluation, gospa, ospa
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker_metrics import RouteCounts
 
@@ -227,3 +227,21 @@ def test_run_metrics_gospa_parts_add_up_to_gospa():
         metrics["GOSPA"])
     assert (metrics["track_switches"], metrics["tracks_per_truth"]) == (1, 2.0)
     assert metrics["track_purity"] == pytest.approx(2.5 / 3)
+
+
+# ----------------------------------------------------------------------------- the comparison's table
+
+def test_gospa_table_best_first_and_none_for_reports_before_gospa():
+    """The compare report's GOSPA table: best GOSPA first, the parts in metres, n/a where a metric is
+    undefined; no table from reports written before GOSPA (the README keeps its other tables)."""
+    runs = {"via_4000": {"GOSPA": 300.4, "GOSPA_localisation": 100.0, "GOSPA_missed": 150.2, "GOSPA_false": 50.2,
+                         "track_switches": 3, "tracks_per_truth": 1.5, "track_purity": 0.9876},
+            "oracle_reference": {"GOSPA": 120.0, "GOSPA_localisation": 60.0, "GOSPA_missed": 60.0, "GOSPA_false": 0.0,
+                                 "track_switches": 0, "tracks_per_truth": 1.0, "track_purity": float("nan")},
+            "old_run": {"OSPA": 250.0}}
+    lines = compare_stage.gospa_table(runs).splitlines()
+    assert lines[0] == ("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track switches | "
+                        "tracks assigned per aircraft | track purity |")
+    assert lines[2:] == ["| oracle_reference | 120 | 60 | 60 | 0 | 0 | 1.00 | n/a |",
+                         "| via_4000 | 300 | 100 | 150 | 50 | 3 | 1.50 | 0.988 |"]
+    assert compare_stage.gospa_table({"via_4000": {"OSPA": 250.0, "GOSPA": None}}) == ""
