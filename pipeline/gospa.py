@@ -8,7 +8,7 @@ set of track estimates Y of one scan, with d the Euclidean distance, cutoff c an
     GOSPA(X, Y) = ( min over assignments γ of  Σ_{(i, j) in γ} d(x_i, y_j)^p + c^p/2 (|X| + |Y| - 2 |γ|) )^(1/p),
 
 γ a one-to-one pairing of some truths with some tracks. Only pairs closer than c are worth
-pairing (a pair at d >= c costs at least c^p, as much as leaving both unpaired), so the same
+pairing (a pair at d >= c costs d^p >= c^p, no less than leaving both unpaired), so the same
 minimum is the linear assignment of all min(|X|, |Y|) pairs with cost min(d, c)^p
 plus c^p/2 per unpaired element (solved with scipy's `linear_sum_assignment`), after which pairs
 at d >= c are taken apart. The sum splits into three parts (m^p, before the root):
@@ -32,9 +32,9 @@ MOT's identity switches (Bernardin and Stiefelhagen, "Evaluating multiple object
 performance: the CLEAR MOT metrics", EURASIP J. Image Video Process. 2008), which compare a
 truth's match with its last known one. So a track lost and taken up again by the same track is
 missed scans, not a switch, and a new track taking over after a gap is one switch; a crossing
-where two tracks swap their truths is two switches, one per truth. (Trajectory GOSPA, García-Fernández,
-Rahmathullah and Svensson, IEEE Trans. Signal Process. 2020, also charges half a switch for
-going to or from no track; we leave that to the missed part.)
+where two tracks swap their truths is two switches, one per truth. (Trajectory GOSPA,
+García-Fernández, Rahmathullah and Svensson, IEEE Trans. Signal Process. 2020, also charges half
+a switch for going to or from no track; we leave that to the missed part.)
 
 **Tracks per truth** (`tracks_per_truth`): the distinct confirmed tracks ever assigned to a
 truth; 1 is one track all along, 0 a truth never tracked.
