@@ -4,8 +4,9 @@ Each scenario is one radar recording tracked on its own, as in the thesis. The M
 sampling draws from a stream seeded by (tracker seed, scenario), so results do not depend
 on the order scenarios are run in.
 
-Besides the thesis's metrics every run gets OSPA (`pipeline.ospa`), ANEES where the tracker
-gives covariances, and its speed in plots per second (tracking time only, one core). Two
+Besides the thesis's metrics every run gets OSPA (`pipeline.ospa`), GOSPA with its parts, track
+switches, tracks per truth and track purity (`pipeline.gospa`, on OSPA's sets of each scan), ANEES
+where the tracker gives covariances, and its speed in plots per second (tracking time only, one core). Two
 references bound the problem: `plots`, the target's raw plots taken as the estimate with the
 true association, and `oracle`, the tuned IMM given the true association.
 
@@ -31,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import torch
 
-from pipeline import io, ospa, plot_table, routes, simulate
+from pipeline import gospa, io, ospa, plot_table, routes, simulate
 from pipeline.params import EvaluationRun, Params
 from pipeline.plot_table import NO_TARGET, Plots
 from pipeline.progress import progress_logger
@@ -141,6 +142,10 @@ class UnitResult:
 
     counts: RouteCounts
     scan_ospa: np.ndarray                  # OSPA (m) of each scan of the scenario
+    scan_gospa: np.ndarray                 # (S, 3) m: each scan's GOSPA in its localisation, missed and false shares
+    track_switches: int                    # of the target (`pipeline.gospa.track_switches`)
+    tracks_per_truth: np.ndarray           # (1,) when the target is in coverage at some scan, else (0,)
+    track_purity: np.ndarray               # of each confirmed track ever assigned to the target
     nees: np.ndarray                       # NEES of each confirmed target update (NaN without covariances)
     seconds: float                         # tracking time alone
     updates: dict[str, np.ndarray] | None  # the updates, kept only where a picture needs them
@@ -175,24 +180,54 @@ def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
     updates = evaluation.runs[name](scenario)
     seconds = time.perf_counter() - start
     scan_of_plot = dict(zip(scenario.plots.plot_id.tolist(), scenario.scans.tolist()))
-    scan_ospa = ospa.scan_ospa(
-        updates, np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64), management,
-        scenario.coverage_scans, np.unique(scenario.scans), scenario.truth, params.evaluate.ospa_cutoff_m,
-        params.evaluate.ospa_order)
+    update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
+    scans = np.unique(scenario.scans)
+    scan_ospa = ospa.scan_ospa(updates, update_scans, management, scenario.coverage_scans, scans, scenario.truth,
+                               params.evaluate.ospa_cutoff_m, params.evaluate.ospa_order)
+    scored = target_gospa(scenario, ospa.scan_estimates(updates, update_scans, management), scans,
+                          params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+    truths = np.zeros(int(np.isin(scans, scenario.coverage_scans).any()), dtype=np.int64)
     pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
     return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
+                      gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
+                      int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
+                      gospa.tracks_per_truth(scored.truth, scored.track, truths),
+                      gospa.track_purity(scored.truth, scored.track),
                       confirmed_nees(updates, scenario.is_target, scenario.truth, management), seconds,
                       updates if pictured else None)
 
 
+def target_gospa(scenario: Scenario, estimates: ospa.ScanEstimates, scans: np.ndarray, cutoff: float, order: float
+                 ) -> gospa.ScanGospa:
+    """GOSPA at each of `scans` of a single-target scenario, on OSPA's sets (`pipeline.ospa`): the
+    target (truth id 0) where it is in coverage, each confirmed track's last estimate in the scan,
+    each compared with the true position at its own time."""
+    errors = np.linalg.norm(estimates.position - scenario.truth(estimates.time), axis=1) if len(estimates.time) \
+        else np.empty(0)
+    present = scans[np.isin(scans, scenario.coverage_scans)]
+    return gospa.scan_gospa(scans, present, np.zeros(len(present), dtype=np.int64), estimates.scan, estimates.track,
+                            lambda truths, tracks: np.broadcast_to(errors[tracks], (len(truths), len(tracks))),
+                            cutoff, order)
+
+
 def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
     """A run's metrics from its units in scenario order; `plots` is the number of plots of all
-    scenarios, and the speed counts the tracking time alone, summed over the units."""
+    scenarios, and the speed counts the tracking time alone, summed over the units. GOSPA and its
+    parts (m) are means over all scans, the parts each scan's shares (`pipeline.gospa`), so they add
+    up to GOSPA; track switches are summed over the routes, tracks per truth averaged over the
+    routes whose target was in coverage, purity over the confirmed tracks ever assigned to a target."""
     nees = np.concatenate([r.nees for r in results])
     per_scan = np.concatenate([r.scan_ospa for r in results])
+    shares = np.concatenate([r.scan_gospa for r in results])
+    per_truth = np.concatenate([r.tracks_per_truth for r in results])
+    purity = np.concatenate([r.track_purity for r in results])
     seconds = sum(r.seconds for r in results)
     return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
-            "OSPA_p90": float(np.percentile(per_scan, 90)),
+            "OSPA_p90": float(np.percentile(per_scan, 90)), "GOSPA": float(shares.sum(axis=1).mean()),
+            **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
+            "track_switches": sum(r.track_switches for r in results),
+            "tracks_per_truth": float(per_truth.mean()) if len(per_truth) else float("nan"),
+            "track_purity": float(purity.mean()) if len(purity) else float("nan"),
             "ANEES": float(nees.mean()) if len(nees) and np.isfinite(nees).all() else float("nan"),
             SPEED: plots / seconds if seconds else float("nan")}
 

@@ -16,6 +16,8 @@ that floor); tracks are not coasted, so no tracker is judged on extrapolation it
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -36,14 +38,21 @@ def ospa(distances: np.ndarray, cutoff: float, order: float) -> float:
     return float((total / max(m, n)) ** (1.0 / order))
 
 
-def scan_ospa(updates: dict[str, np.ndarray], update_scans: np.ndarray, management: TrackManagement,
-              scans_in_coverage: np.ndarray, all_scans: np.ndarray, truth_at: callable, cutoff: float,
-              order: float) -> np.ndarray:
-    """OSPA of one single-target scenario at each of `all_scans` (sorted).
+@dataclass(frozen=True)
+class ScanEstimates:
+    """The estimate sets of a tracker run's scans: each confirmed track updated during a scan, at its
+    last update in it; E estimates, sorted by scan, then track."""
 
-    `updates` is an update table (`pipeline.tracker.updates`), confirmed by `management`'s rule;
-    `update_scans` is the scan of each update's plot; `scans_in_coverage` the scans in which
-    the target exists for the radar; `truth_at(times)` the target's true ECEF positions."""
+    scan: np.ndarray      # (E,) int64, the scan
+    track: np.ndarray     # (E,) int64, the track's id
+    time: np.ndarray      # (E,) s, the update's time
+    position: np.ndarray  # (E, 3) m ECEF, the track's position after the update
+
+
+def scan_estimates(updates: dict[str, np.ndarray], update_scans: np.ndarray, management: TrackManagement
+                   ) -> ScanEstimates:
+    """The estimate set of every scan from an update table (`pipeline.tracker.updates`), confirmed by
+    `management`'s rule; `update_scans` is the scan of each update's plot."""
     confirmed = confirmed_associations(updates, management)
     times = updates["time_unix_s"][confirmed]
     scans = update_scans[confirmed]
@@ -53,8 +62,21 @@ def scan_ospa(updates: dict[str, np.ndarray], update_scans: np.ndarray, manageme
     estimates = positions(updates)[confirmed][order_in_time]
     last = np.ones(len(scans), dtype=bool)  # each track's last update in each scan
     last[:-1] = (scans[1:] != scans[:-1]) | (tracks[1:] != tracks[:-1])
-    scans, times, estimates = scans[last], times[last], estimates[last]
-    errors = np.linalg.norm(estimates - truth_at(times), axis=1) if len(times) else np.empty(0)
+    return ScanEstimates(scans[last], tracks[last], times[last], estimates[last])
+
+
+def scan_ospa(updates: dict[str, np.ndarray], update_scans: np.ndarray, management: TrackManagement,
+              scans_in_coverage: np.ndarray, all_scans: np.ndarray, truth_at: callable, cutoff: float,
+              order: float) -> np.ndarray:
+    """OSPA of one single-target scenario at each of `all_scans` (sorted).
+
+    `updates` is an update table (`pipeline.tracker.updates`), confirmed by `management`'s rule;
+    `update_scans` is the scan of each update's plot; `scans_in_coverage` the scans in which
+    the target exists for the radar; `truth_at(times)` the target's true ECEF positions."""
+    estimates = scan_estimates(updates, update_scans, management)
+    scans = estimates.scan
+    errors = (np.linalg.norm(estimates.position - truth_at(estimates.time), axis=1) if len(scans)
+              else np.empty(0))
     present = np.isin(all_scans, scans_in_coverage)
     result = np.empty(len(all_scans))
     starts = np.searchsorted(scans, all_scans, side="left")

@@ -261,6 +261,8 @@ class Evaluate:
     references: tuple[str, ...]
     ospa_cutoff_m: float
     ospa_order: float
+    gospa_cutoff_m: float           # GOSPA (alpha = 2, `pipeline.gospa`): cutoff c ...
+    gospa_order: float              # ... and order p
     example_scenarios: int
     example_run: str
     sites: tuple[Site, ...]         # evaluate_sites: the same routes at these radar sites (empty: none)
@@ -749,6 +751,8 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
         raise ParamError(f"{p}.references = {references!r}: must list some of {REFERENCES}")
     return Evaluate(split=split, runs=tuple(runs), references=tuple(references),
                     ospa_cutoff_m=_positive(tree, "ospa_cutoff_m", p), ospa_order=_positive(tree, "ospa_order", p),
+                    gospa_cutoff_m=_positive(tree, "gospa_cutoff_m", p),
+                    gospa_order=_number(tree, "gospa_order", p, 1.0),  # GOSPA is a metric for p >= 1
                     example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run,
                     sites=_sites(tree, p), site_runs=_site_runs(tree, p, names))
 

@@ -69,6 +69,9 @@ def test_default_params_load():
     ("tracker.confirm_n", 0, ["tracker.confirm_n", "0"]),
     ("tracker.confirm_n", 53, ["tracker.confirm_n = 53", "at most 52"]),
     ("tracker.delete_after_s", 0.0, ["tracker.delete_after_s", "0.0"]),
+    # GOSPA: a positive cutoff, and an order for which it is a metric
+    ("evaluate.gospa_cutoff_m", 0.0, ["evaluate.gospa_cutoff_m", "0.0"]),
+    ("evaluate.gospa_order", 0.5, ["evaluate.gospa_order = 0.5", "[1.0, inf]"]),
 ])
 def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
     """An invalid value raises ParamError whose message names the key and the value."""
