@@ -11,6 +11,10 @@ comparison run (`pipeline.batch_filters`):
   `Q_discrete_white_noise(dim=3)`, the discrete Wiener-process acceleration model).
 - `cv9`: constant velocity in the CA state, acceleration reset to zero at each step, so an
   IMM can mix it with `ca` (filterpy's IMMEstimator needs one state layout for all models).
+- `singer`: Singer's model (Singer 1970, IEEE Trans. AES-6(4)) in the CA state: the acceleration
+  is a first-order Gauss-Markov process of manoeuvre time constant tau (alpha = 1 / tau) and
+  variance sigma_m^2 (`noise_std` = sigma_m, m/s^2). Not a tuned kind of the classical tracker
+  (`classical_filters.KINDS`); the torch filters (`pipeline.torch_filters`) run it.
 
 The noise is the same on the three axes, so the filters give the same result in ECEF as in
 a local east-north-up frame (Q and the transition commute with a rotation of the axes):
@@ -22,9 +26,13 @@ so the tuner can step hundreds of tracks at once.
 
 from __future__ import annotations
 
+from fractions import Fraction
+from math import factorial
+from types import ModuleType
+
 import numpy as np
 
-DIMENSIONS = {"cv": 2, "ca": 3, "cv9": 3}  # state entries per axis
+DIMENSIONS = {"cv": 2, "ca": 3, "cv9": 3, "singer": 3}  # state entries per axis
 
 
 def state_size(model: str) -> int:
@@ -56,9 +64,11 @@ def _per_axis(block: np.ndarray) -> np.ndarray:
     return out
 
 
-def transition(model: str, dt: float | np.ndarray) -> np.ndarray:
-    """F over dt."""
+def transition(model: str, dt: float | np.ndarray, manoeuvre_time_s: float | None = None) -> np.ndarray:
+    """F over dt; `singer` also needs its manoeuvre time constant tau (s)."""
     dt = np.asarray(dt, dtype=float)
+    if model == "singer":
+        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), 1.0)[0])
     one, zero = np.ones_like(dt), np.zeros_like(dt)
     if model == "cv":
         rows = [[one, dt], [zero, one]]
@@ -67,13 +77,17 @@ def transition(model: str, dt: float | np.ndarray) -> np.ndarray:
     elif model == "cv9":
         rows = [[one, dt, zero], [zero, one, zero], [zero, zero, zero]]
     else:
-        raise ValueError(f"motion model {model!r}: must be cv, ca or cv9")
+        raise ValueError(f"motion model {model!r}: must be cv, ca, cv9 or singer")
     return _per_axis(np.moveaxis(np.array(rows), (0, 1), (-2, -1)))
 
 
-def process_noise(model: str, dt: float | np.ndarray, noise_std: float) -> np.ndarray:
-    """Q over dt for process noise of standard deviation `noise_std` (m/s^2 for cv/cv9, m/s^3 for ca)."""
+def process_noise(model: str, dt: float | np.ndarray, noise_std: float, manoeuvre_time_s: float | None = None
+                  ) -> np.ndarray:
+    """Q over dt for process noise of standard deviation `noise_std` (m/s^2 for cv/cv9, m/s^3 for ca;
+    for singer the acceleration's standard deviation sigma_m, m/s^2, with its manoeuvre time tau, s)."""
     dt = np.asarray(dt, dtype=float)
+    if model == "singer":
+        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), noise_std ** 2)[1])
     variance = noise_std ** 2
     if model in ("cv", "cv9"):
         rows = [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]
@@ -83,7 +97,7 @@ def process_noise(model: str, dt: float | np.ndarray, noise_std: float) -> np.nd
     elif model == "ca":
         rows = [[dt ** 4 / 4, dt ** 3 / 2, dt ** 2 / 2], [dt ** 3 / 2, dt ** 2, dt], [dt ** 2 / 2, dt, np.ones_like(dt)]]
     else:
-        raise ValueError(f"motion model {model!r}: must be cv, ca or cv9")
+        raise ValueError(f"motion model {model!r}: must be cv, ca, cv9 or singer")
     return variance * _per_axis(np.moveaxis(np.array(rows), (0, 1), (-2, -1)))
 
 
@@ -104,5 +118,99 @@ def initial_state(model: str, position: np.ndarray, covariance: np.ndarray, velo
         spread[..., index, index] = velocity_std ** 2
     if DIMENSIONS[model] == 3:
         for index in (2, 5, 8):
-            spread[..., index, index] = acceleration_std ** 2 if model == "ca" else 0.0
+            spread[..., index, index] = acceleration_std ** 2 if model in ("ca", "singer") else 0.0
     return state, spread
+
+
+# ----------------------------------------------------------------------------- Singer's model
+#
+# Singer (1970), as restated by Li & Jilkov (2003), "Survey of maneuvering target tracking. Part I:
+# dynamic models", IEEE Trans. AES-39(4), section IV.A: per axis, state [x, v, a] with
+# da/dt = -alpha a + w, w white of spectral density 2 alpha sigma_m^2, so over a step T, with u = alpha T,
+#
+#   F = [[1, T, (u - 1 + e^-u) / alpha^2], [0, 1, (1 - e^-u) / alpha], [0, 0, e^-u]]
+#
+# and Q = 2 alpha sigma_m^2 [q_ij] with
+#   q11 = (1 - e^-2u + 2u + 2u^3/3 - 2u^2 - 4u e^-u) / (2 alpha^5)
+#   q12 = (e^-2u + 1 - 2e^-u + 2u e^-u - 2u + u^2) / (2 alpha^4)
+#   q13 = (1 - e^-2u - 2u e^-u) / (2 alpha^3)
+#   q22 = (4e^-u - 3 - e^-2u + 2u) / (2 alpha^3)
+#   q23 = (e^-2u + 1 - 2e^-u) / (2 alpha^2)
+#   q33 = (1 - e^-2u) / (2 alpha).
+# Each entry is T^p g(u) for a function g of u alone: F13 = T^2 g, F23 = T g, Q11 = sigma_m^2 T^4 g,
+# and so on. Below SINGER_SERIES_BELOW the closed forms cancel badly (q11's terms are of order u,
+# their sum of order u^5 / 10: about 20 eps / u^4 relative error), so there g is summed from its
+# Taylor series, whose coefficients are computed exactly here from those of the exponentials.
+
+SINGER_SERIES_BELOW = 0.5   # u = alpha T below which g(u) is summed from its series
+SINGER_SERIES_TERMS = 20    # the series' terms: the first left out is below 1e-18 relative at u = 0.5
+
+# g(u) = sum of c u^a e^(-b u) over the (c, a, b) terms, divided by u^m: {entry: (terms, m)}.
+_SINGER_FUNCTIONS = {
+    "F13": (((1, 1, 0), (-1, 0, 0), (1, 0, 1)), 2),
+    "F23": (((1, 0, 0), (-1, 0, 1)), 1),
+    "Q11": (((1, 0, 0), (-1, 0, 2), (2, 1, 0), (Fraction(2, 3), 3, 0), (-2, 2, 0), (-4, 1, 1)), 4),
+    "Q12": (((1, 0, 2), (1, 0, 0), (-2, 0, 1), (2, 1, 1), (-2, 1, 0), (1, 2, 0)), 3),
+    "Q13": (((1, 0, 0), (-1, 0, 2), (-2, 1, 1)), 2),
+    "Q22": (((4, 0, 1), (-3, 0, 0), (-1, 0, 2), (2, 1, 0)), 2),
+    "Q23": (((1, 0, 2), (1, 0, 0), (-2, 0, 1)), 1),
+}
+
+
+def _series(terms: tuple, power: int) -> list[float]:
+    """Taylor coefficients (lowest order first) of sum(c u^a e^(-b u)) / u^power, exact to rounding;
+    the coefficients below u^power must cancel (they do for Singer's entries)."""
+    def coefficient(k: int) -> Fraction:
+        return sum((Fraction(c) * Fraction(-b) ** (k - a) / factorial(k - a) for c, a, b in terms if k >= a),
+                   Fraction(0))
+    assert all(coefficient(k) == 0 for k in range(power)), terms
+    return [float(coefficient(k)) for k in range(power, power + SINGER_SERIES_TERMS)]
+
+
+_SINGER_SERIES = {name: _series(terms, power) for name, (terms, power) in _SINGER_FUNCTIONS.items()}
+
+
+def _manoeuvre_time(manoeuvre_time_s: float | None) -> float:
+    if manoeuvre_time_s is None or not manoeuvre_time_s > 0.0:
+        raise ValueError(f"singer: manoeuvre_time_s = {manoeuvre_time_s!r}: must be a time constant above 0 s")
+    return manoeuvre_time_s
+
+
+def singer_blocks(dt, alpha, variance, xp: ModuleType = np):
+    """Singer's per-axis F and Q, (..., 3, 3) each, over steps dt (s) with manoeuvre frequency alpha
+    (1/s) and acceleration variance sigma_m^2 (m^2/s^4), all broadcast together (formulas above).
+
+    `xp` is the array module, numpy or torch: the same arithmetic serves the NumPy reference and the
+    differentiable torch filters (`pipeline.torch_filters`), whose network scales alpha per step."""
+    u = alpha * dt
+    small = u < SINGER_SERIES_BELOW
+    closed_u = xp.where(small, SINGER_SERIES_BELOW, u)   # the closed form never sees u near 0 (no 0/0, no NaN gradient)
+    e1, e2 = xp.exp(-closed_u), xp.exp(-2 * closed_u)
+    closed = {"F13": (closed_u - 1 + e1) / closed_u ** 2,
+              "F23": (1 - e1) / closed_u,
+              "Q11": (1 - e2 + 2 * closed_u + 2 * closed_u ** 3 / 3 - 2 * closed_u ** 2 - 4 * closed_u * e1) / closed_u ** 4,
+              "Q12": (e2 + 1 - 2 * e1 + 2 * closed_u * e1 - 2 * closed_u + closed_u ** 2) / closed_u ** 3,
+              "Q13": (1 - e2 - 2 * closed_u * e1) / closed_u ** 2,
+              "Q22": (4 * e1 - 3 - e2 + 2 * closed_u) / closed_u ** 2,
+              "Q23": (e2 + 1 - 2 * e1) / closed_u}
+    series_u = xp.where(small, u, 0.0)
+    g = {name: xp.where(small, _horner(_SINGER_SERIES[name], series_u), closed[name]) for name in closed}
+    e = xp.exp(-u)
+    one, zero = xp.ones_like(u), xp.zeros_like(u)
+    F = [[one, dt * one, dt ** 2 * g["F13"]], [zero, one, dt * g["F23"]], [zero, zero, e]]
+    q12, q13, q23 = variance * dt ** 3 * g["Q12"], variance * dt ** 2 * g["Q13"], variance * dt * g["Q23"]
+    Q = [[variance * dt ** 4 * g["Q11"], q12, q13], [q12, variance * dt ** 2 * g["Q22"], q23],
+         [q13, q23, -variance * xp.expm1(-2 * u)]]
+    return stacked_matrix(F, xp), stacked_matrix(Q, xp)
+
+
+def _horner(coefficients: list[float], u):
+    value = coefficients[-1]
+    for coefficient in reversed(coefficients[:-1]):
+        value = value * u + coefficient
+    return value
+
+
+def stacked_matrix(rows: list[list], xp: ModuleType = np):
+    """(..., r, c) from r lists of c entries, all of one shape (...)."""
+    return xp.stack([xp.stack(row, -1) for row in rows], -2)
