@@ -68,7 +68,7 @@ def transition(model: str, dt: float | np.ndarray, manoeuvre_time_s: float | Non
     """F over dt; `singer` also needs its manoeuvre time constant tau (s)."""
     dt = np.asarray(dt, dtype=float)
     if model == "singer":
-        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), 1.0)[0])
+        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), np.float64(1.0))[0])
     one, zero = np.ones_like(dt), np.zeros_like(dt)
     if model == "cv":
         rows = [[one, dt], [zero, one]]
@@ -87,7 +87,7 @@ def process_noise(model: str, dt: float | np.ndarray, noise_std: float, manoeuvr
     for singer the acceleration's standard deviation sigma_m, m/s^2, with its manoeuvre time tau, s)."""
     dt = np.asarray(dt, dtype=float)
     if model == "singer":
-        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), noise_std ** 2)[1])
+        return _per_axis(singer_blocks(dt, 1.0 / _manoeuvre_time(manoeuvre_time_s), np.float64(noise_std) ** 2)[1])
     variance = noise_std ** 2
     if model in ("cv", "cv9"):
         rows = [[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]
@@ -138,23 +138,26 @@ def initial_state(model: str, position: np.ndarray, covariance: np.ndarray, velo
 #   q23 = (e^-2u + 1 - 2e^-u) / (2 alpha^2)
 #   q33 = (1 - e^-2u) / (2 alpha).
 # Each entry is T^p g(u) for a function g of u alone: F13 = T^2 g, F23 = T g, Q11 = sigma_m^2 T^4 g,
-# and so on. Below SINGER_SERIES_BELOW the closed forms cancel badly (q11's terms are of order u,
-# their sum of order u^5 / 10: about 20 eps / u^4 relative error), so there g is summed from its
-# Taylor series, whose coefficients are computed exactly here from those of the exponentials.
+# and so on, and each g is a sum of terms c u^a e^(-b u) over a power of u (the table below, the
+# formulas above). Below SINGER_SERIES_BELOW the closed forms cancel badly (q11's terms are of
+# order u, their sum of order u^5 / 10: about 20 eps / u^4 relative error), so there g is summed
+# from its Taylor series, whose coefficients are computed exactly from the same table.
 
 SINGER_SERIES_BELOW = 0.5   # u = alpha T below which g(u) is summed from its series
 SINGER_SERIES_TERMS = 20    # the series' terms: the first left out is below 1e-18 relative at u = 0.5
 
-# g(u) = sum of c u^a e^(-b u) over the (c, a, b) terms, divided by u^m: {entry: (terms, m)}.
+# g(u) = sum of c u^a e^(-b u) over the (c, a, b) terms, divided by u^m: {entry: (terms, m, p)}, p the power of T.
 _SINGER_FUNCTIONS = {
-    "F13": (((1, 1, 0), (-1, 0, 0), (1, 0, 1)), 2),
-    "F23": (((1, 0, 0), (-1, 0, 1)), 1),
-    "Q11": (((1, 0, 0), (-1, 0, 2), (2, 1, 0), (Fraction(2, 3), 3, 0), (-2, 2, 0), (-4, 1, 1)), 4),
-    "Q12": (((1, 0, 2), (1, 0, 0), (-2, 0, 1), (2, 1, 1), (-2, 1, 0), (1, 2, 0)), 3),
-    "Q13": (((1, 0, 0), (-1, 0, 2), (-2, 1, 1)), 2),
-    "Q22": (((4, 0, 1), (-3, 0, 0), (-1, 0, 2), (2, 1, 0)), 2),
-    "Q23": (((1, 0, 2), (1, 0, 0), (-2, 0, 1)), 1),
+    "F13": (((1, 1, 0), (-1, 0, 0), (1, 0, 1)), 2, 2),
+    "F23": (((1, 0, 0), (-1, 0, 1)), 1, 1),
+    "Q11": (((1, 0, 0), (-1, 0, 2), (2, 1, 0), (Fraction(2, 3), 3, 0), (-2, 2, 0), (-4, 1, 1)), 4, 4),
+    "Q12": (((1, 0, 2), (1, 0, 0), (-2, 0, 1), (2, 1, 1), (-2, 1, 0), (1, 2, 0)), 3, 3),
+    "Q13": (((1, 0, 0), (-1, 0, 2), (-2, 1, 1)), 2, 2),
+    "Q22": (((4, 0, 1), (-3, 0, 0), (-1, 0, 2), (2, 1, 0)), 2, 2),
+    "Q23": (((1, 0, 2), (1, 0, 0), (-2, 0, 1)), 1, 1),
+    "Q33": (((1, 0, 0), (-1, 0, 2)), 0, 0),
 }
+_SINGER_BASIS = ((0, 0), (1, 0), (2, 0), (3, 0), (0, 1), (0, 2), (1, 1))  # the (a, b) of u^a e^(-b u) in the terms
 
 
 def _series(terms: tuple, power: int) -> list[float]:
@@ -167,7 +170,13 @@ def _series(terms: tuple, power: int) -> list[float]:
     return [float(coefficient(k)) for k in range(power, power + SINGER_SERIES_TERMS)]
 
 
-_SINGER_SERIES = {name: _series(terms, power) for name, (terms, power) in _SINGER_FUNCTIONS.items()}
+# Per entry (columns, in _SINGER_FUNCTIONS' order): its terms' coefficients on the basis, its power
+# of u and of T, and its Taylor coefficients.
+_SINGER_CLOSED = np.array([[float(sum(c for c, a, b in terms if (a, b) == basis)) for terms, _, _ in
+                            _SINGER_FUNCTIONS.values()] for basis in _SINGER_BASIS])
+_SINGER_U_POWER = np.array([power for _, power, _ in _SINGER_FUNCTIONS.values()], dtype=float)
+_SINGER_T_POWER = np.array([power for _, _, power in _SINGER_FUNCTIONS.values()], dtype=float)
+_SINGER_SERIES = np.array([_series(terms, power) for terms, power, _ in _SINGER_FUNCTIONS.values()]).T
 
 
 def _manoeuvre_time(manoeuvre_time_s: float | None) -> float:
@@ -182,33 +191,24 @@ def singer_blocks(dt, alpha, variance, xp: ModuleType = np):
 
     `xp` is the array module, numpy or torch: the same arithmetic serves the NumPy reference and the
     differentiable torch filters (`pipeline.torch_filters`), whose network scales alpha per step."""
+    def table(values: np.ndarray):
+        return xp.asarray(values, dtype=u.dtype)
+
     u = alpha * dt
     small = u < SINGER_SERIES_BELOW
     closed_u = xp.where(small, SINGER_SERIES_BELOW, u)   # the closed form never sees u near 0 (no 0/0, no NaN gradient)
-    e1, e2 = xp.exp(-closed_u), xp.exp(-2 * closed_u)
-    closed = {"F13": (closed_u - 1 + e1) / closed_u ** 2,
-              "F23": (1 - e1) / closed_u,
-              "Q11": (1 - e2 + 2 * closed_u + 2 * closed_u ** 3 / 3 - 2 * closed_u ** 2 - 4 * closed_u * e1) / closed_u ** 4,
-              "Q12": (e2 + 1 - 2 * e1 + 2 * closed_u * e1 - 2 * closed_u + closed_u ** 2) / closed_u ** 3,
-              "Q13": (1 - e2 - 2 * closed_u * e1) / closed_u ** 2,
-              "Q22": (4 * e1 - 3 - e2 + 2 * closed_u) / closed_u ** 2,
-              "Q23": (e2 + 1 - 2 * e1) / closed_u}
+    e = xp.exp(-closed_u)
+    basis = xp.stack([xp.ones_like(u), closed_u, closed_u ** 2, closed_u ** 3, e, e * e, closed_u * e], -1)
+    closed = basis @ table(_SINGER_CLOSED) / closed_u[..., None] ** table(_SINGER_U_POWER)
     series_u = xp.where(small, u, 0.0)
-    g = {name: xp.where(small, _horner(_SINGER_SERIES[name], series_u), closed[name]) for name in closed}
-    e = xp.exp(-u)
+    powers = xp.cumprod(xp.stack([series_u] * (SINGER_SERIES_TERMS - 1), -1), -1)   # u, u^2, ...
+    series = table(_SINGER_SERIES[0]) + powers @ table(_SINGER_SERIES[1:])
+    g = xp.where(small[..., None], series, closed) * dt[..., None] ** table(_SINGER_T_POWER)
+    F13, F23, Q11, Q12, Q13, Q22, Q23, Q33 = (g[..., i] for i in range(8))
     one, zero = xp.ones_like(u), xp.zeros_like(u)
-    F = [[one, dt * one, dt ** 2 * g["F13"]], [zero, one, dt * g["F23"]], [zero, zero, e]]
-    q12, q13, q23 = variance * dt ** 3 * g["Q12"], variance * dt ** 2 * g["Q13"], variance * dt * g["Q23"]
-    Q = [[variance * dt ** 4 * g["Q11"], q12, q13], [q12, variance * dt ** 2 * g["Q22"], q23],
-         [q13, q23, -variance * xp.expm1(-2 * u)]]
-    return stacked_matrix(F, xp), stacked_matrix(Q, xp)
-
-
-def _horner(coefficients: list[float], u):
-    value = coefficients[-1]
-    for coefficient in reversed(coefficients[:-1]):
-        value = value * u + coefficient
-    return value
+    F = [[one, dt * one, F13], [zero, one, F23], [zero, zero, xp.exp(-u)]]
+    Q = [[Q11, Q12, Q13], [Q12, Q22, Q23], [Q13, Q23, Q33]]
+    return stacked_matrix(F, xp), variance[..., None, None] * stacked_matrix(Q, xp)
 
 
 def stacked_matrix(rows: list[list], xp: ModuleType = np):

@@ -13,15 +13,33 @@ import torch
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import expm
 
-from pipeline import batch_filters, motion_models, torch_filters
+from pipeline import batch_filters, motion_models, torch_filters, tuning
 from pipeline.torch_filters import FilterSpec, Scales, SequenceBatch
-from tests.test_classical import material, radar, realistic_rows, settings  # noqa: F401 (fixtures)
+from tests.test_classical import plots_table, radar_plots, random_flight, realistic_rows, settings
 
 NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}
 
 
+@pytest.fixture(scope="module")
+def radar(make_params):
+    return make_params(1).radar
+
+
+@pytest.fixture(scope="module")
+def material(radar) -> tuning.Sequences:
+    """Tuning material: 6 random flights of 16 plots with the radar's noise, two per scenario an hour apart."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for index in range(6):
+        times, truth = random_flight(rng, radar, 16)
+        plots, _ = radar_plots(truth, radar, rng)
+        rows += [(index // 2, t + 3600.0 * (index % 2), tuple(p), tuple(e)) for t, p, e in zip(times, plots, truth)]
+    return tuning.target_sequences(plots_table(rows), radar, restart_gap_s=24.0, burn_in_updates=3,
+                                   gate_probability=0.995, gated_from=2)
+
+
 def tensors(*arrays: np.ndarray) -> list[torch.Tensor]:
-    return [torch.as_tensor(array) for array in arrays]
+    return [torch.as_tensor(np.array(array)) for array in arrays]
 
 
 def singer_spec(manoeuvre_time_s: float = 20.0, sigma_m: float = 4.0) -> FilterSpec:
@@ -171,7 +189,7 @@ def test_sequences_equal_the_numpy_filter_sequences(radar, kind, unit_scales):
                                    rtol=1e-9, atol=1e-6)
 
 
-def test_training_material_batches_give_the_numpy_error(material):  # noqa: F811
+def test_training_material_batches_give_the_numpy_error(material):
     """The tuner's material as tensors: rows of it filter as the NumPy core does, and the position
     error over the scored plots is the mean distance the NumPy filter gives."""
     kind_settings = settings("imm", NOISE["imm"])
@@ -219,13 +237,13 @@ def test_gradients_reach_a_scale_only_within_the_truncation_window(radar, kind, 
 def test_learning_the_measurement_noise_scale():
     """On synthetic CV flights (white-noise acceleration of the filter's own 2 m/s^2) measured with
     noise twice the nominal standard deviation, Adam on the log of one R scale, minimising the mean
-    squared position error, moves it from 1 to near the true variance ratio 4 (within a factor 1.6)."""
+    squared position error, moves it in 60 steps from 1 to near the true variance ratio 4 (within a factor 1.5)."""
     torch.manual_seed(0)
-    B, T, dt, q, nominal = 64, 30, 5.0, 2.0, 100.0
+    B, T, dt, q, nominal = 256, 20, 5.0, 2.0, 100.0
     F = torch_filters.motion(FilterSpec("cv", (q,), 0.0, 0.0), torch.full((1,), dt))[0][0, 0, :2, :2]
     velocity_std = 150.0
-    state = torch.cat([torch.zeros(B, 1, 3), velocity_std * torch.randn(B, 1, 3)], 1).to(torch.float64)  # [p, v] per axis
-    gain = torch.tensor([[dt ** 2 / 2], [dt]], dtype=torch.float64)  # Q = q^2 gain gain' (discrete white-noise acceleration)
+    state = torch.cat([torch.zeros(B, 1, 3), velocity_std * torch.randn(B, 1, 3)], 1).to(torch.float64)  # [p; v]
+    gain = torch.tensor([[dt ** 2 / 2], [dt]], dtype=torch.float64)  # Q = q^2 gain gain' (white-noise acceleration)
     truth = []
     for _ in range(T):
         truth.append(state[:, 0])
@@ -238,15 +256,15 @@ def test_learning_the_measurement_noise_scale():
     restart[:, 0] = True
     spec = FilterSpec("cv", (q,), velocity_std, 0.0)
     log_scale = torch.zeros((), dtype=torch.float64, requires_grad=True)
-    optimiser = torch.optim.Adam([log_scale], lr=0.05)
-    for _ in range(150):
+    optimiser = torch.optim.Adam([log_scale], lr=0.1)
+    for _ in range(60):
         optimiser.zero_grad()
         filtered = torch_filters.filter_sequences(spec, times, positions, covariances, valid, restart,
                                                   Scales(r=log_scale.exp().expand(B, T)), detach_every=10)
         loss = ((filtered.position[:, 3:] - truth[:, 3:]) ** 2).sum(-1).mean()
         loss.backward()
         optimiser.step()
-    assert 4.0 / 1.6 < float(log_scale.exp()) < 4.0 * 1.6
+    assert 4.0 / 1.5 < float(log_scale.detach().exp()) < 4.0 * 1.5
 
 
 # ----------------------------------------------------------------------------- bad input
