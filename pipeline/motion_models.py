@@ -1,8 +1,8 @@
 """Motion models of the classical trackers: transition F and process noise Q over a time step.
 
-Three models, each defined once here and used both by the filterpy reference filters
-(`pipeline.classical_filters`) and by the one Kalman core that the tracker, the tuner and the
-comparison run (`pipeline.batch_filters`):
+Four models, each defined once here and used by the filterpy reference filters
+(`pipeline.classical_filters`), by the one Kalman core that the tracker, the tuner and the
+comparison run (`pipeline.batch_filters`) and by its differentiable twin (`pipeline.torch_filters`):
 
 - `cv`: constant velocity, state [x, vx, y, vy, z, vz], white-noise acceleration of standard
   deviation q (filterpy's `Q_discrete_white_noise(dim=2)`).

@@ -182,7 +182,9 @@ def _monomial_tables(models: tuple[str, ...], dtype: torch.dtype) -> tuple[Tenso
 
 def motion(spec: FilterSpec, dt: Tensor, q_scale: Tensor | None = None, manoeuvre_scale: Tensor | None = None
            ) -> tuple[Tensor, Tensor]:
-    """Each track's transition F and process noise Q (B, M, n, n) over dt (B,) seconds.
+    """Each track's transition F and process noise Q (B, M, n, n) over dt (B,) seconds
+    (`motion_models.transition` and `process_noise`: cv, ca and cv9 from their monomial tables,
+    singer from `motion_models.singer_blocks`).
 
     Q is multiplied by `q_scale` ((B,) for all models, or (B, M)); singer's manoeuvre frequency
     1 / manoeuvre_time_s by `manoeuvre_scale` (B,), which changes both F and Q (the seed's F(alpha))."""
