@@ -125,8 +125,9 @@ def test_torch_motion_is_motion_models(model):
 @pytest.mark.parametrize("kind", ["cv", "ca", "imm"])
 def test_torch_filter_equals_the_numpy_core_step_by_step(kind):
     """From the same start, each predict (mixing, F, Q) and update (z, R) of the torch filter gives the
-    NumPy core's states, covariances and mode probabilities (every entry, not just the position) at
-    each of 25 steps of 5 tracks with their own time steps and measurement covariances."""
+    NumPy core's states, covariances and mode probabilities (every entry, not just the position), and
+    its combined position estimates, at each of 25 steps of 5 tracks with their own time steps and
+    measurement covariances."""
     dt, z, R = local_sequence()
     kind_settings = settings(kind, NOISE[kind], velocity_std_mps=300.0)
     spec = FilterSpec.from_settings(kind_settings)
@@ -138,7 +139,9 @@ def test_torch_filter_equals_the_numpy_core_step_by_step(kind):
                                                                                 F_and_Q[:, 1]), z[:, step], R[:, step])
         prior = torch_filters.predicted(spec, state, *torch_filters.motion(spec, torch.as_tensor(dt[:, step])))
         state = torch_filters.updated(spec, prior, *tensors(z[:, step], R[:, step]))
-        for got, want in ((state.x, expected.x), (state.P, expected.P), (state.mu, expected.mu)):
+        pairs = [(state.x, expected.x), (state.P, expected.P), (state.mu, expected.mu)]
+        pairs += zip(torch_filters.position_estimates(state), batch_filters.position_estimates(expected))
+        for got, want in pairs:
             np.testing.assert_allclose(got.numpy(), want, rtol=1e-12, atol=1e-9, err_msg=f"step {step}")
     if kind == "imm":
         assert 0.01 < expected.mu.min() and expected.mu.max() < 0.99  # the models' probabilities did move
