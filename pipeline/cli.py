@@ -54,6 +54,12 @@ def _tune_kalman(args: argparse.Namespace) -> None:
     run_tune(load_params(args.params), Path(args.simulated), Path(args.models), Path(args.reports))
 
 
+def _train_kalman_net(args: argparse.Namespace) -> None:
+    from pipeline.kalman_net_stage import run_train_kalman_net
+    run_train_kalman_net(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
+                         Path(args.reports))
+
+
 def _compare(args: argparse.Namespace) -> None:
     from pipeline.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
@@ -123,6 +129,11 @@ COMMANDS = {
                     "(scipy Nelder-Mead); writes models/kalman_tuned.json.",
                     "python -m pipeline tune-kalman --simulated data/simulated --models models --reports reports",
                     ["params", "simulated", "models", "reports"]),
+    "train-kalman-net": (_train_kalman_net, "Train the network-scaled Kalman filter and the gradient-tuned CV, CA, "
+                         "Singer and IMM filters on a split's target plots (Lightning, one MLflow run).",
+                         "python -m pipeline train-kalman-net --simulated data/simulated --windows data/windows "
+                         "--models models --reports reports",
+                         ["params", "simulated", "windows", "models", "reports"]),
     "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
                 "against the tuned Kalman filters on the hold-out.",
                 "python -m pipeline compare --windows data/windows --models models --reports reports",

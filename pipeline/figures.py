@@ -216,3 +216,18 @@ def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
     axis.legend(fontsize=7, ncol=2, loc="lower right")
     figure.tight_layout()
     return _png(figure)
+
+
+def noise_scale_picture(result: dict) -> bytes:
+    """Mean hold-out error of each filter against the factor on the radar's noise (`filter_holdout.compare`)."""
+    figure, axes = plt.subplots(figsize=(7, 4.5))
+    for name, errors in result["mean_error_by_noise_m"].items():
+        axes.plot(result["noise_factors"], errors, marker="o", label=name)
+    axes.set_xscale("log", base=2)
+    axes.set_yscale("log")
+    axes.set_xlabel("plot noise: the radar's sigmas times")
+    axes.set_ylabel("mean position error at the window's last plot (m)")
+    axes.set_title("Hold-out windows, noise level unknown to the filters")
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend(fontsize=7)
+    return _png(figure)

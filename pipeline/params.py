@@ -287,6 +287,44 @@ class Kalman:
     imm_initial_cv_probability: float
 
 
+KALMAN_NET_BASES = ("cv", "ca", "singer")   # base filters the network can scale (one motion model each)
+KALMAN_NET_CELLS = ("gru", "mlp")
+GRADIENT_KINDS = ("cv", "ca", "singer", "imm")  # filters tuned by gradient descent
+
+
+@dataclass(frozen=True)
+class KalmanNet:
+    """The network-scaled filter, the gradient-tuned baselines and their hold-out comparison (params.yaml)."""
+
+    split: str
+    base: str
+    cell: str
+    hidden: int
+    noise_std: float
+    manoeuvre_time_s: float
+    velocity_std_mps: float
+    acceleration_std_mps2: float
+    r0_scale: float
+    q_amplitude: float
+    r_amplitude: float
+    manoeuvre_amplitude: float
+    velocity_scale_mps: float
+    nis_scale: float
+    restart_gap_s: float
+    burn_in_updates: int
+    segment_plots: int
+    truncation_steps: int
+    batch_segments: int
+    epochs: int
+    learning_rate: float
+    seed: int
+    baselines: tuple[str, ...]
+    baseline_epochs: int
+    baseline_learning_rate: float
+    noise_scales: tuple[float, ...]
+    noise_seed: int
+
+
 @dataclass(frozen=True)
 class Params:
     radar: Radar
@@ -298,6 +336,7 @@ class Params:
     training: Training
     tracker: TrackerParams
     kalman: Kalman
+    kalman_net: KalmanNet
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
 
@@ -819,6 +858,58 @@ def _kalman(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Kalman:
     )
 
 
+def _kalman_net(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> KalmanNet:
+    """Checked before anything trains: Q0 and R0 positive definite (Q0 = noise_std^2 times a positive
+    definite matrix of dt and tau, R0 = r0_scale times the plot's covariance), amplitudes above 1 (an
+    untrained network gives every scale 1), truncation within a training segment."""
+    p = "kalman_net"
+    base, cell = _text(tree, "base", p), _text(tree, "cell", p)
+    if base not in KALMAN_NET_BASES:
+        raise ParamError(f"{p}.base = {base!r}: must be one of {KALMAN_NET_BASES}")
+    if cell not in KALMAN_NET_CELLS:
+        raise ParamError(f"{p}.cell = {cell!r}: must be one of {KALMAN_NET_CELLS}")
+    for key in ("noise_std", "manoeuvre_time_s", "r0_scale"):
+        value = _get(tree, key, p)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
+            matrix = "R0" if key == "r0_scale" else "Q0"
+            raise ParamError(f"{p}.{key} = {value!r}: {matrix} must be positive definite, so this must be a "
+                             "positive number")
+    amplitudes = {key: _number(tree, key, p) for key in ("q_amplitude", "r_amplitude", "manoeuvre_amplitude")}
+    for key, value in amplitudes.items():
+        if value <= 1.0:
+            raise ParamError(f"{p}.{key} = {value!r}: must be above 1 (the largest scale the network can give; "
+                             "it starts at 1)")
+    segment_plots = _integer(tree, "segment_plots", p, 2)
+    truncation = _integer(tree, "truncation_steps", p, 1)
+    if truncation > segment_plots:
+        raise ParamError(f"{p}.truncation_steps = {truncation}: longer than the training segments "
+                         f"(segment_plots = {segment_plots})")
+    burn_in = _integer(tree, "burn_in_updates", p)
+    if burn_in >= segment_plots:
+        raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot segment to score")
+    baselines = _get(tree, "baselines", p)
+    if (not isinstance(baselines, list) or len(set(baselines)) != len(baselines)
+            or not set(baselines) <= set(GRADIENT_KINDS)):
+        raise ParamError(f"{p}.baselines = {baselines!r}: must list distinct kinds of {GRADIENT_KINDS}")
+    scales = _get(tree, "noise_scales", p)
+    if (not isinstance(scales, list) or not scales or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in scales)):
+        raise ParamError(f"{p}.noise_scales = {scales!r}: must list positive numbers")
+    return KalmanNet(
+        split=_split_name(tree, p, splits), base=base, cell=cell, hidden=_integer(tree, "hidden", p, 1),
+        noise_std=float(tree["noise_std"]), manoeuvre_time_s=float(tree["manoeuvre_time_s"]),
+        velocity_std_mps=_positive(tree, "velocity_std_mps", p),
+        acceleration_std_mps2=_positive(tree, "acceleration_std_mps2", p), r0_scale=float(tree["r0_scale"]),
+        **amplitudes, velocity_scale_mps=_positive(tree, "velocity_scale_mps", p),
+        nis_scale=_positive(tree, "nis_scale", p), restart_gap_s=_positive(tree, "restart_gap_s", p),
+        burn_in_updates=burn_in, segment_plots=segment_plots, truncation_steps=truncation,
+        batch_segments=_integer(tree, "batch_segments", p, 1), epochs=_integer(tree, "epochs", p, 1),
+        learning_rate=_positive(tree, "learning_rate", p), seed=_integer(tree, "seed", p),
+        baselines=tuple(baselines), baseline_epochs=_integer(tree, "baseline_epochs", p, 1),
+        baseline_learning_rate=_positive(tree, "baseline_learning_rate", p),
+        noise_scales=tuple(float(v) for v in scales), noise_seed=_integer(tree, "noise_seed", p))
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -842,6 +933,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         training=_training(_get(tree, "training", "params"), windows),
         tracker=_tracker(_get(tree, "tracker", "params"), windows, radar),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
+        kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )

@@ -74,10 +74,12 @@ class Sequences:
 
 
 def target_sequences(plots: pa.Table, radar: Radar, restart_gap_s: float, burn_in_updates: int,
-                     gate_probability: float, gated_from: int) -> Sequences:
+                     gate_probability: float, gated_from: int, segment_plots: int | None = None) -> Sequences:
     """Each route's target plots, with the truth and the converted-measurement covariance, to be
     held to the tracker's gate of probability `gate_probability` from the `gated_from`-th plot of
-    each (re)start on (the tracker's young-track plots, which it gates by a radius, before)."""
+    each (re)start on (the tracker's young-track plots, which it gates by a radius, before).
+    `segment_plots`: the filter also restarts after this many plots, so rows are at most that long
+    (training segments for gradient descent, `pipeline.filter_training`)."""
     target = plots.filter(plots.column("is_target"))
     route = target.column("scenario_id").to_numpy()
     time = target.column("time_unix_s").to_numpy()
@@ -91,6 +93,9 @@ def target_sequences(plots: pa.Table, radar: Radar, restart_gap_s: float, burn_i
     restart_at = np.concatenate([[True], route[1:] != route[:-1]]) | (gap > restart_gap_s)
     index = np.arange(len(time))
     since_restart = index - np.maximum.accumulate(np.where(restart_at, index, 0))
+    if segment_plots is not None:
+        restart_at |= since_restart % segment_plots == 0
+        since_restart = index - np.maximum.accumulate(np.where(restart_at, index, 0))
     row, column = _packed(np.diff(np.flatnonzero(np.append(restart_at, True))))
     B, T = row.max() + 1, column.max() + 1
 
