@@ -6,7 +6,9 @@ the time quantised to 10 ms as a radar's are, 50/50/30 m noise), batched (B = 25
 and the torch forward and backward of a loss on the positions w.r.t. per-step Q and R scales, as
 training runs it (truncated every --detach steps). Printed per filter and batch size: steps per
 second (columns of the batch, each B tracks) and track-steps per second (B x steps), best of
---repeat. Singer has no NumPy twin in `filter_sequences` (n/a).
+--repeat. Singer has no NumPy twin in `filter_sequences` (n/a). Then the network-scaled filter
+(`pipeline.kalman_net`, Singer base, a GRU cell or an MLP of 16 units): forward, and forward and
+backward of the mean position error w.r.t. its weights; against singer's rows, the network's cost.
 
     python benchmarks/bench_torch_filters.py [--steps 200] [--repeat 3] [--threads 1] [--detach 20]
 """
@@ -22,7 +24,8 @@ import torch
 
 from pipeline import batch_filters, torch_filters
 from pipeline.classical_filters import FilterSettings
-from pipeline.torch_filters import FilterSpec, Scales
+from pipeline.kalman_net import CELLS, KalmanNet, KalmanNetConfig
+from pipeline.torch_filters import FilterSpec, Scales, SequenceBatch
 
 KINDS = ("cv", "ca", "imm", "singer")
 BATCHES = (256, 1)
@@ -87,6 +90,27 @@ def torch_training_step(kind: str, rows: tuple[torch.Tensor, ...], detach_every:
     return run
 
 
+def network_scaled(kind: str) -> KalmanNet:
+    """The network-scaled filter on the singer base (default params' sizes), untrained: its cost per step
+    does not depend on the weights."""
+    return KalmanNet(KalmanNetConfig("singer", kind, 16, 4.0, 20.0, 300.0, 20.0, 1.0, 100.0, 4.0, 10.0, 400.0, 10.0))
+
+
+def network_forward(model: KalmanNet, batch: SequenceBatch) -> Callable[[], object]:
+    def run() -> None:
+        with torch.no_grad():
+            model(batch)
+    return run
+
+
+def network_training_step(model: KalmanNet, batch: SequenceBatch, detach_every: int) -> Callable[[], object]:
+    """Forward and backward of the mean position error w.r.t. the network's weights."""
+    def run() -> None:
+        model.zero_grad()
+        batch.position_error(model(batch, detach_every)).backward()
+    return run
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=200)
@@ -110,6 +134,15 @@ def main() -> None:
                     continue
                 rate = args.steps / best_seconds(run, args.repeat)
                 print(f"{kind:7s} {batch:<4d} {method:24s} {rate:8.0f} {rate * batch:15.0f}")
+    for cell in CELLS:
+        for batch in BATCHES:
+            times, positions, covariances, valid, restart = (torch.as_tensor(a) for a in tracks(batch, args.steps))
+            rows = SequenceBatch(times, positions, covariances, positions, valid, restart, valid)
+            model = network_scaled(cell)
+            for method, run in (("torch forward", network_forward(model, rows)),
+                                ("torch forward+backward", network_training_step(model, rows, args.detach))):
+                rate = args.steps / best_seconds(run, args.repeat)
+                print(f"{'net-' + cell:7s} {batch:<4d} {method:24s} {rate:8.0f} {rate * batch:15.0f}")
 
 
 if __name__ == "__main__":

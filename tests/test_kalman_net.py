@@ -208,3 +208,26 @@ def test_material_shorter_than_the_truncation_is_refused(make_params):
     with pytest.raises(InputError, match="longest training segment has 12 plots, fewer than "
                                          "kalman_net.truncation_steps = 16"):
         kalman_net_stage.training_material(params, table, table.slice(0, 0))
+
+
+def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
+    """`dvc repro train_kalman_net` in a copy of the tiny pipeline (seconds there): the network loads, the
+    four gradient-tuned filters are saved, the report has one loss per epoch, one MLflow run is logged."""
+    import json
+    import shutil
+    import sqlite3
+
+    from tests.servers import dvc
+    repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
+    (repository / "mlflow.db").unlink()  # its runs keep artifacts in the original's folder: a store of its own
+    dvc(repository, "repro", "train_kalman_net")
+    model = kalman_net.load(repository / "models" / "kalman_net.pt")
+    assert model.config.base == "cv"
+    gradient = json.loads((repository / "models" / "kalman_gradient.json").read_text())
+    assert sorted(gradient) == ["ca", "cv", "imm", "singer"]
+    assert all(TunedFilter.from_dict(values).to_dict()["r_scale"] > 0 for values in gradient.values())
+    report = json.loads((repository / "reports" / "kalman_net.json").read_text())
+    assert len(report["kalman_net"]["epoch_losses_m"]) == 1
+    with sqlite3.connect(repository / "mlflow.db") as store:
+        names = [row[0] for row in store.execute("SELECT name FROM runs WHERE status = 'FINISHED'")]
+    assert names.count("train_kalman_net") == 1
