@@ -29,6 +29,11 @@ def _simulate(args: argparse.Namespace) -> None:
     run_simulate(load_params(args.params), Path(args.routes), Path(args.out))
 
 
+def _scenes(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_scenes
+    run_scenes(load_params(args.params), Path(args.out))
+
+
 def _data_report(args: argparse.Namespace) -> None:
     from pipeline.stages import run_data_report
     run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
@@ -108,6 +113,9 @@ COMMANDS = {
     "simulate": (_simulate, "Run the rotating radar over the routes: plots, per-scan truth, radar description.",
                  "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated",
                  ["params", "routes", ("out", "data/simulated")]),
+    "scenes": (_scenes, "Simulate the multi-target scenes (crossings, formations, aircraft entering and leaving "
+               "coverage): routes, plots, per-scan truth, radar description.",
+               "python -m pipeline scenes --params params.yaml --out data/scenes", ["params", ("out", "data/scenes")]),
     "data-report": (_data_report, "Metrics (data.json) and pictures of the simulated data.",
                     "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports",
                     ["params", "routes", "simulated", ("out", "reports")]),
