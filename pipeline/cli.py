@@ -75,6 +75,11 @@ def _evaluate_sites(args: argparse.Namespace) -> None:
     run_evaluate_sites(load_params(args.params), Path(args.models), Path(args.reports))
 
 
+def _evaluate_scenes(args: argparse.Namespace) -> None:
+    from pipeline.evaluate_scenes_stage import run_evaluate_scenes
+    run_evaluate_scenes(load_params(args.params), Path(args.scenes), Path(args.models), Path(args.reports))
+
+
 def _track(args: argparse.Namespace) -> None:
     from pipeline.track_command import run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
@@ -100,6 +105,7 @@ def _readme(args: argparse.Namespace) -> int:
 FOLDERS = {  # option -> (default, what it is)
     "routes": ("data/routes", "routes folder"),
     "simulated": ("data/simulated", "simulated data folder"),
+    "scenes": ("data/scenes", "multi-target scenes folder"),
     "windows": ("data/windows", "windows folder"),
     "models": ("models", "models folder"),
     "reports": ("reports", "reports folder"),
@@ -142,6 +148,11 @@ COMMANDS = {
                        "every run there (reports/site_metrics.json; the training site's row from evaluate's).",
                        "python -m pipeline evaluate-sites --models models --reports reports",
                        ["params", "models", "reports"]),
+    "evaluate-scenes": (_evaluate_scenes, "Track the multi-target scenes with every run of evaluate.scene_runs and "
+                        "the oracle; GOSPA and its parts, track switches (reports/scene_metrics.json) and a picture "
+                        "of the busiest scene (reports/scene_example.png).",
+                        "python -m pipeline evaluate-scenes --scenes data/scenes --models models --reports reports",
+                        ["params", "scenes", "models", "reports"]),
     "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "
