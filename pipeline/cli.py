@@ -29,6 +29,11 @@ def _simulate(args: argparse.Namespace) -> None:
     run_simulate(load_params(args.params), Path(args.routes), Path(args.out))
 
 
+def _scenes(args: argparse.Namespace) -> None:
+    from pipeline.stages import run_scenes
+    run_scenes(load_params(args.params), Path(args.out))
+
+
 def _data_report(args: argparse.Namespace) -> None:
     from pipeline.stages import run_data_report
     run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
@@ -76,6 +81,11 @@ def _evaluate_sites(args: argparse.Namespace) -> None:
     run_evaluate_sites(load_params(args.params), Path(args.models), Path(args.reports))
 
 
+def _evaluate_scenes(args: argparse.Namespace) -> None:
+    from pipeline.evaluate_scenes_stage import run_evaluate_scenes
+    run_evaluate_scenes(load_params(args.params), Path(args.scenes), Path(args.models), Path(args.reports))
+
+
 def _track(args: argparse.Namespace) -> None:
     from pipeline.track_command import run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
@@ -101,6 +111,7 @@ def _readme(args: argparse.Namespace) -> int:
 FOLDERS = {  # option -> (default, what it is)
     "routes": ("data/routes", "routes folder"),
     "simulated": ("data/simulated", "simulated data folder"),
+    "scenes": ("data/scenes", "multi-target scenes folder"),
     "windows": ("data/windows", "windows folder"),
     "models": ("models", "models folder"),
     "reports": ("reports", "reports folder"),
@@ -114,6 +125,9 @@ COMMANDS = {
     "simulate": (_simulate, "Run the rotating radar over the routes: plots, per-scan truth, radar description.",
                  "python -m pipeline simulate --params params.yaml --routes data/routes --out data/simulated",
                  ["params", "routes", ("out", "data/simulated")]),
+    "scenes": (_scenes, "Simulate the multi-target scenes (crossings, formations, aircraft entering and leaving "
+               "coverage): routes, plots, per-scan truth, radar description.",
+               "python -m pipeline scenes --params params.yaml --out data/scenes", ["params", ("out", "data/scenes")]),
     "data-report": (_data_report, "Metrics (data.json) and pictures of the simulated data.",
                     "python -m pipeline data-report --routes data/routes --simulated data/simulated --out reports",
                     ["params", "routes", "simulated", ("out", "reports")]),
@@ -145,6 +159,11 @@ COMMANDS = {
                        "every run there (reports/site_metrics.json; the training site's row from evaluate's).",
                        "python -m pipeline evaluate-sites --models models --reports reports",
                        ["params", "models", "reports"]),
+    "evaluate-scenes": (_evaluate_scenes, "Track the multi-target scenes with every run of evaluate.scene_runs and "
+                        "the oracle; GOSPA and its parts, track switches (reports/scene_metrics.json) and a picture "
+                        "of the busiest scene (reports/scene_example.png).",
+                        "python -m pipeline evaluate-scenes --scenes data/scenes --models models --reports reports",
+                        ["params", "scenes", "models", "reports"]),
     "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "

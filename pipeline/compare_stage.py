@@ -3,8 +3,10 @@ against the tuned Kalman filters on the hold-out windows.
 
 Trackers: the evaluate stage's metrics (`reports/tracker_metrics.json`), one row each, best
 first by OSPA, and GOSPA with its parts and the identity metrics (`pipeline.gospa`), best first
-by GOSPA; and each one's position error at the other radar sites against the training
-site's (`reports/site_metrics.json`, `pipeline.site_report`). Hold-out: the windows the
+by GOSPA; on the multi-target scenes, GOSPA with its parts, switches and fragmentation
+(`reports/scene_metrics.json`, `pipeline.scene_evaluation`); and each one's position error at
+the other radar sites against the training site's (`reports/site_metrics.json`,
+`pipeline.site_report`). Hold-out: the windows the
 networks were scored on (`reports/models.json`), run through each tuned filter
 (`models/kalman_tuned.json`):
 - filter: the estimate of each window's last plot, the filters fed the window's plots with
@@ -33,6 +35,8 @@ TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NO
                    "plots_per_second")
 GOSPA_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "tracks_per_truth",
                  "track_purity")
+SCENE_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "fragmentation",
+                 "tracks_per_truth", "track_purity", "plots_per_second")
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
 SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
@@ -224,6 +228,38 @@ def gospa_table(runs: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+SCENES_TITLE = "Many aircraft: GOSPA and its parts, switches"
+
+
+def scenes_intro(scenes: dict, cutoff_m: float, order: float) -> str:
+    """What the scenes table scores, with the scenes' size (`reports/scene_metrics.json`)."""
+    return (f"{scenes['scenes']} scenes of {scenes['aircraft_per_scene']} aircraft, {scenes['duration_s'] / 60:.0f} "
+            f"minutes each ({scenes['plots']['target']:,} target and {scenes['plots']['false']:,} false plots; "
+            "`pipeline/scenes.py`: in every scene two routes crossing at one altitude at 10-30°, a formation of 2-4 "
+            "aircraft 0.5-3 km apart that splits, aircraft entering and leaving coverage, the others on the route "
+            "strategies), tracked whole by every run of `evaluate.scene_runs` and the oracle (`dvc repro "
+            "evaluate_scenes`). GOSPA per scan over the aircraft in coverage (cutoff "
+            f"{cutoff_m:.0f} m, order {order:g}) with its parts, means over all scans; track switches summed over all "
+            "aircraft, an aircraft keeping its track while it stays within the cutoff (CLEAR MOT's rule, "
+            "`pipeline/gospa.py`); fragmentation: the tracks assigned to an aircraft beyond the first, per "
+            "aircraft; purity per confirmed track; plots/s: tracking alone, one core. Best GOSPA first; "
+            f"`reports/scene_example.png`: scene {scenes['example']['scene']} tracked by {scenes['example']['run']}.")
+
+
+def scenes_table(runs: dict[str, dict]) -> str:
+    """GOSPA and its parts, switches, fragmentation, tracks per truth, purity and speed of every run on
+    the scenes, best GOSPA first."""
+    forms = {"GOSPA": "{:.0f}", "GOSPA_localisation": "{:.0f}", "GOSPA_missed": "{:.0f}", "GOSPA_false": "{:.0f}",
+             "track_switches": "{:.0f}", "fragmentation": "{:.2f}", "tracks_per_truth": "{:.2f}",
+             "track_purity": "{:.3f}", "plots_per_second": "{:,.0f}"}
+    header = ["tracker", "GOSPA (m)", "localisation (m)", "missed (m)", "false (m)", "track switches",
+              "fragmentation", "tracks assigned per aircraft", "track purity", "plots/s"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
+        lines.append(f"| {name} | " + " | ".join(_cell(runs[name].get(m), forms[m]) for m in SCENE_METRICS) + " |")
+    return "\n".join(lines)
+
+
 def holdout_table(holdout: dict) -> str:
     """The `holdout` part of comparison.json as a table."""
     lines = ["| estimator | filter: error of the last plot's estimate (m) | predictor: error of the next state (m) |",
@@ -307,6 +343,7 @@ def _read_json(path: Path, stage: str) -> dict:
 def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
     tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
     sites = site_report.site_comparison(_read_json(reports_dir / "site_metrics.json", "evaluate_sites"))
+    scenes = _read_json(reports_dir / "scene_metrics.json", "evaluate_scenes")
     networks = _read_json(reports_dir / "models.json", "models_report")
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
@@ -329,7 +366,11 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                               "network_prediction_error_m": networks["predictor"]["predictor_error_m"]},
                   "tuning": {kind: {"cost_before": v["cost_before"], "cost_after": v["cost_after"]}
                              for kind, v in tuning["filters"].items()},
-                  "sites": sites, "by_strategy": tracker.get("by_strategy", {}), "scaled_filters": scaled}
+                  "sites": sites, "by_strategy": tracker.get("by_strategy", {}), "scaled_filters": scaled,
+                  "scenes": {**{key: scenes[key] for key in ("scenes", "aircraft_per_scene", "duration_s", "plots",
+                                                             "example")},
+                             "runs": {name: {m: values.get(m) for m in SCENE_METRICS}
+                                      for name, values in scenes["runs"].items()}}}
     site_part = sites_section(sites, runs)
     gospa_part = gospa_table(runs)
     text = "\n\n".join([
@@ -348,6 +389,10 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         "## Track continuity", CONTINUITY_INTRO, continuity_table(runs, comparison["by_strategy"]),
         *(["## GOSPA and its parts", f"{GOSPA_INTRO} Cutoff {params.evaluate.gospa_cutoff_m:.0f} m, order "
             f"{params.evaluate.gospa_order:g}; best GOSPA first.", gospa_part] if gospa_part else []),
+        f"## {SCENES_TITLE}", scenes_intro(comparison["scenes"], params.evaluate.gospa_cutoff_m,
+                                           params.evaluate.gospa_order),
+        scenes_table(comparison["scenes"]["runs"]), "![A busy scene: tracks by identity, switches marked]"
+                                                   "(scene_example.png)",
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         "## The network-scaled Kalman filter against filters tuned by gradient descent and by Nelder-Mead",

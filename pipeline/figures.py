@@ -231,3 +231,56 @@ def noise_scale_picture(result: dict) -> bytes:
     axes.grid(True, which="both", alpha=0.3)
     axes.legend(fontsize=7)
     return _png(figure)
+
+
+def scene_picture(scene: object, updates: dict[str, np.ndarray], scored: object, management: TrackManagement,
+                  params: Params, run_name: str) -> bytes:
+    """One multi-target scene (`scene_evaluation.Scene`) tracked by a run: the aircraft's true
+    routes in grey, the confirmed tracks' states coloured by track identity (confirmed by the run's
+    rule `management`), and a red cross where an aircraft's assigned track switched to another
+    (`scored`, the scene's `gospa.ScanGospa`), at the aircraft's position in that scan. Left the
+    whole scene, right the crossing pair's neighbourhood (50 km across)."""
+    radar = params.radar
+
+    def local_km(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        east, north, _ = pymap3d.ecef2enu(ecef[:, 0], ecef[:, 1], ecef[:, 2], radar.latitude_deg,
+                                          radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
+        return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
+
+    period = radar.scan_period_s
+    times = np.linspace(scene.plots.time.min(), scene.plots.time.max(), 2000)
+    in_order = np.lexsort((scored.scan, scored.truth))
+    truth, scan, track = scored.truth[in_order], scored.scan[in_order], scored.track[in_order]
+    switched = np.flatnonzero((truth[1:] == truth[:-1]) & (track[1:] != track[:-1])) + 1
+    switches = np.array([scene.trajectories[int(truth[k])](np.array([(scan[k] + 0.5) * period]))[0]
+                         for k in switched]).reshape(-1, 3)
+    crossing = [aircraft for aircraft, role in scene.roles.items() if role == "crossing"]
+    first, second = (scene.trajectories[aircraft](times) for aircraft in crossing[:2])
+    centre = local_km(first[[int(np.argmin(np.linalg.norm(first - second, axis=1)))]])
+    confirmed = confirmed_associations(updates, management)
+    states = positions(updates)
+    track_ids = np.unique(updates["track_id"][confirmed])
+    colours = plt.get_cmap("tab20").colors
+    figure, axes = plt.subplots(1, 2, figsize=(15, 7.5))
+    for axis in axes:
+        for aircraft, trajectory in scene.trajectories.items():
+            axis.plot(*local_km(trajectory(times)), color="0.6", lw=2.5, alpha=0.6,
+                      label="aircraft (truth)" if aircraft == 0 else None)
+        for number, track_id in enumerate(track_ids):
+            rows = confirmed & (updates["track_id"] == track_id)
+            axis.plot(*local_km(states[rows]), "-", lw=1.0, color=colours[number % len(colours)],
+                      label="confirmed tracks (colour: identity)" if number == 0 else None)
+        axis.scatter(*local_km(switches), marker="x", s=60, color="red", zorder=5,
+                     label=f"track switches ({len(switches)})")
+        axis.set_aspect("equal")
+        axis.set_xlabel("east of radar (km)")
+        axis.set_ylabel("north of radar (km)")
+    axes[0].plot(0, 0, "k^", ms=8)
+    axes[0].set_title(f"scene {scene.scenario_id}, {run_name}: {len(scene.trajectories)} aircraft, "
+                      f"{len(track_ids)} confirmed tracks", fontsize=10)
+    axes[0].legend(fontsize=8, loc="best")
+    axes[1].set_xlim(centre[0][0] - 25.0, centre[0][0] + 25.0)
+    axes[1].set_ylim(centre[1][0] - 25.0, centre[1][0] + 25.0)
+    axes[1].set_title("around the crossing pair's closest approach", fontsize=10)
+    figure.tight_layout()
+    return _png(figure)

@@ -36,6 +36,17 @@ where two tracks swap their truths is two switches, one per truth. (Trajectory G
 García-Fernández, Rahmathullah and Svensson, IEEE Trans. Signal Process. 2020, also charges half
 a switch for going to or from no track; we leave that to the missed part.)
 
+**Kept pairs** (`scan_gospa(..., keep_pairs=True)`, for scenes of many aircraft): where two
+truths come closer than the estimates' errors (two aircraft crossing), GOSPA's assignment of a
+single scan may pair each with the other's track, and back the next scan: two switches for each
+truth, though no track changed aircraft. CLEAR MOT (above) keeps a correspondence while it stays
+valid, and so do kept pairs: a truth keeps the track it was last paired with while that track's
+estimate is within the cutoff of it (and not taken by a truth that kept it first, in truth id
+order); the truths and tracks left are paired as GOSPA pairs them (the linear assignment, pairs at
+d >= c taken apart). A track that really swaps aircraft is switched when it leaves the cutoff of
+its old one. The GOSPA parts are always those of GOSPA's own assignment; only the pairs the
+identity metrics read change.
+
 **Tracks per truth** (`tracks_per_truth`): the distinct confirmed tracks ever assigned to a
 truth; 1 is one track all along, 0 a truth never tracked.
 
@@ -85,21 +96,47 @@ class ScanGospa:
     track: np.ndarray  # (A,) its track's id
 
 
+def kept_pairs(distances: np.ndarray, truths: np.ndarray, tracks: np.ndarray, last: dict[int, int], cutoff: float,
+               order: float) -> tuple[np.ndarray, np.ndarray]:
+    """One scan's kept pairs (see the module docstring), as rows (A,) of `distances` (T, K) m and
+    columns (A,), from the scan's truth ids (T,) and track ids (K,) and `last`, each truth's last
+    paired track by id, which is updated."""
+    column_of = {int(track): column for column, track in enumerate(tracks.tolist())}
+    rows, columns = [], []
+    for row in np.argsort(truths, kind="stable"):
+        column = column_of.get(last.get(int(truths[row]), -1))
+        if column is not None and column not in columns and distances[row, column] < cutoff:
+            rows.append(int(row))
+            columns.append(column)
+    free_rows = np.setdiff1d(np.arange(len(truths)), rows)
+    free_columns = np.setdiff1d(np.arange(len(tracks)), columns)
+    _, paired_rows, paired_columns = gospa_parts(distances[np.ix_(free_rows, free_columns)], cutoff, order)
+    rows = np.concatenate([rows, free_rows[paired_rows]]).astype(np.intp)
+    columns = np.concatenate([columns, free_columns[paired_columns]]).astype(np.intp)
+    last.update(zip(truths[rows].tolist(), tracks[columns].tolist()))
+    return rows, columns
+
+
 def scan_gospa(scans: np.ndarray, truth_scan: np.ndarray, truth_id: np.ndarray, track_scan: np.ndarray,
                track_id: np.ndarray, distances: Callable[[np.ndarray, np.ndarray], np.ndarray], cutoff: float,
-               order: float) -> ScanGospa:
-    """GOSPA at each of `scans` (S,): N truth rows (`truth_scan`, `truth_id`) and M track estimate
-    rows (`track_scan`, `track_id`), each sorted by scan; `distances(truth_rows, track_rows)` gives
-    the distances (T, K) m between the truths and estimates of one scan, by row index. Scans with
-    no truth or no track cost c^p/2 per element without solving an assignment."""
+               order: float, keep_pairs: bool = False) -> ScanGospa:
+    """GOSPA at each of `scans` (S,, sorted): N truth rows (`truth_scan`, `truth_id`) and M track
+    estimate rows (`track_scan`, `track_id`), each sorted by scan; `distances(truth_rows, track_rows)`
+    gives the distances (T, K) m between the truths and estimates of one scan, by row index. Scans
+    with no truth or no track cost c^p/2 per element without solving an assignment. The pairs are
+    GOSPA's assignment's, or with `keep_pairs` the kept pairs (module docstring)."""
     truth_begin, truth_end = np.searchsorted(truth_scan, scans, "left"), np.searchsorted(truth_scan, scans, "right")
     track_begin, track_end = np.searchsorted(track_scan, scans, "left"), np.searchsorted(track_scan, scans, "right")
     half = cutoff ** order / 2.0
     parts = np.column_stack([np.zeros(len(scans)), half * (truth_end - truth_begin), half * (track_end - track_begin)])
     pairs = [np.empty((0, 3), dtype=np.int64)]
+    last: dict[int, int] = {}
     for k in np.flatnonzero((truth_end > truth_begin) & (track_end > track_begin)):
         truths, tracks = np.arange(truth_begin[k], truth_end[k]), np.arange(track_begin[k], track_end[k])
-        parts[k], rows, columns = gospa_parts(distances(truths, tracks), cutoff, order)
+        matrix = distances(truths, tracks)
+        parts[k], rows, columns = gospa_parts(matrix, cutoff, order)
+        if keep_pairs:
+            rows, columns = kept_pairs(matrix, truth_id[truths], track_id[tracks], last, cutoff, order)
         pairs.append(np.column_stack([np.full(len(rows), scans[k]), truth_id[truths[rows]], track_id[tracks[columns]]]))
     scan, truth, track = np.concatenate(pairs).astype(np.int64).T
     return ScanGospa(parts, scan, truth, track)

@@ -136,6 +136,31 @@ class Split:
 
 
 @dataclass(frozen=True)
+class Scenes:
+    """Multi-target scenes (`pipeline.scenes`): `count` scenes of `aircraft` aircraft each, over
+    `duration_s`, every one with a crossing, a formation and aircraft entering and leaving coverage."""
+
+    count: int
+    aircraft: int                       # per scene, the placed situations' aircraft included
+    duration_s: float
+    seed: int
+    aircraft_mix: Mapping[str, float]   # type name -> weight
+    strategies: Mapping[str, float]     # route strategy -> weight, for the aircraft not placed in a situation
+    start_spread: float                 # those start at uniform times in the first this share of the scene
+    separation_m: float                 # no aircraft appears nearer than this to another (within a formation apart)
+    situation_range_min_m: float        # the crossing point and the formation's split point lie this far
+    situation_range_max_m: float        #   from the radar (horizontally)
+    crossing_angle_min_deg: float
+    crossing_angle_max_deg: float
+    formation_size_min: int
+    formation_size_max: int
+    formation_spacing_min_m: float
+    formation_spacing_max_m: float
+    formation_split_deg: float          # neighbours in the formation turn this far apart when it splits
+    attempts: int                       # redraws of an aircraft that appears too near another
+
+
+@dataclass(frozen=True)
 class Routes:
     sample_interval_s: float
     start_time_unix_s: float
@@ -267,10 +292,15 @@ class Evaluate:
     example_run: str
     sites: tuple[Site, ...]         # evaluate_sites: the same routes at these radar sites (empty: none)
     site_runs: tuple[str, ...]      # evaluate_sites: the runs (by name) scored at the sites (empty: every run)
+    scene_runs: tuple[str, ...]     # evaluate_scenes: the runs (by name) scored on the scenes (empty: every run)
 
     def runs_at_sites(self) -> tuple[EvaluationRun, ...]:
         """The runs `evaluate_sites` scores: those `site_runs` names, in `runs` order, or all of them."""
         return tuple(run for run in self.runs if not self.site_runs or run.name in self.site_runs)
+
+    def runs_on_scenes(self) -> tuple[EvaluationRun, ...]:
+        """The runs `evaluate_scenes` scores: those `scene_runs` names, in `runs` order, or all of them."""
+        return tuple(run for run in self.runs if not self.scene_runs or run.name in self.scene_runs)
 
 
 @dataclass(frozen=True)
@@ -330,6 +360,7 @@ class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
     routes: Routes
+    scenes: Scenes
     simulate_seed: int
     example_routes: int
     windows: Windows
@@ -512,16 +543,80 @@ def _aircraft(name: str, tree: Mapping[str, Any]) -> Aircraft:
 def _split(name: str, tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft]) -> Split:
     p = f"routes.splits.{name}"
     counts = {strategy: _integer(tree, strategy, p) for strategy in STRATEGIES}
-    mix_tree = _get(tree, "aircraft_mix", p)
-    if not isinstance(mix_tree, Mapping) or not mix_tree:
-        raise ParamError(f"{p}.aircraft_mix = {mix_tree!r}: must map aircraft types to weights")
-    for kind in mix_tree:
-        if kind not in aircraft:
-            raise ParamError(f"{p}.aircraft_mix.{kind}: unknown aircraft type (known: {sorted(aircraft)})")
-    mix = {kind: _number(mix_tree, kind, f"{p}.aircraft_mix", 0.0) for kind in mix_tree}
-    if sum(mix.values()) <= 0.0:
-        raise ParamError(f"{p}.aircraft_mix = {dict(mix)}: weights must not all be zero")
-    return Split(name=name, counts=counts, seed=_integer(tree, "seed", p), aircraft_mix=mix)
+    return Split(name=name, counts=counts, seed=_integer(tree, "seed", p),
+                 aircraft_mix=_weights(tree, "aircraft_mix", p, list(aircraft), "aircraft type"))
+
+
+def _weights(tree: Mapping[str, Any], key: str, p: str, known: list[str], what: str) -> dict[str, float]:
+    """A mapping of some of `known` names to weights >= 0, not all zero (an aircraft mix, strategy weights)."""
+    weights_tree = _get(tree, key, p)
+    if not isinstance(weights_tree, Mapping) or not weights_tree:
+        raise ParamError(f"{p}.{key} = {weights_tree!r}: must map {what}s to weights")
+    for name in weights_tree:
+        if name not in known:
+            raise ParamError(f"{p}.{key}.{name}: unknown {what} (known: {sorted(known)})")
+    weights = {name: _number(weights_tree, name, f"{p}.{key}", 0.0) for name in weights_tree}
+    if sum(weights.values()) <= 0.0:
+        raise ParamError(f"{p}.{key} = {dict(weights)}: weights must not all be zero")
+    return weights
+
+
+SITUATION_AIRCRAFT = 4  # a scene's crossing pair, its aircraft entering and its aircraft leaving coverage
+
+
+def _scenes(tree: Mapping[str, Any], aircraft: Mapping[str, Aircraft], radar: Radar) -> Scenes:
+    """The `scenes` section. Besides each value's range: a scene must hold its placed situations
+    (SITUATION_AIRCRAFT aircraft and the largest formation), and no more aircraft than fit the
+    coverage box (side sqrt(2) R_max) with `separation_m` between them, packed hexagonally (each
+    aircraft a disc of diameter separation_m, sqrt(3)/2 separation_m^2 of area); and the closest
+    formation must be resolvable at the farthest place it is put (`formation_resolution_m`)."""
+    p = "scenes"
+    size = _interval(tree, "formation_size", p, 2.0)
+    if size != (int(size[0]), int(size[1])):
+        raise ParamError(f"{p}.formation_size = {list(size)}: must be whole numbers of aircraft, at least 2")
+    situation = _positive_interval(tree, "situation_range_m", p, radar.range_max_m)
+    if situation[0] < radar.range_min_m:
+        raise ParamError(f"{p}.situation_range_m = {list(situation)}: starts inside the radar's blind range "
+                         f"radar.range_min_m = {radar.range_min_m}")
+    spacing = _positive_interval(tree, "formation_spacing_m", p)
+    angle = _positive_interval(tree, "crossing_angle_deg", p, 90.0)
+    scenes = Scenes(
+        count=_integer(tree, "count", p, 1), aircraft=_integer(tree, "aircraft", p, 1),
+        duration_s=_positive(tree, "duration_s", p), seed=_integer(tree, "seed", p),
+        aircraft_mix=_weights(tree, "aircraft_mix", p, list(aircraft), "aircraft type"),
+        strategies=_weights(tree, "strategies", p, list(STRATEGIES), "route strategy"),
+        start_spread=_number(tree, "start_spread", p, 0.0, 1.0, high_open=True),
+        separation_m=_positive(tree, "separation_m", p),
+        situation_range_min_m=situation[0], situation_range_max_m=situation[1],
+        crossing_angle_min_deg=angle[0], crossing_angle_max_deg=angle[1],
+        formation_size_min=int(size[0]), formation_size_max=int(size[1]),
+        formation_spacing_min_m=spacing[0], formation_spacing_max_m=spacing[1],
+        formation_split_deg=_number(tree, "formation_split_deg", p, 0.0, 180.0, low_open=True, high_open=True),
+        attempts=_integer(tree, "attempts", p, 1))
+    needed = SITUATION_AIRCRAFT + scenes.formation_size_max
+    if scenes.aircraft < needed:
+        raise ParamError(f"{p}.aircraft = {scenes.aircraft}: a scene needs at least {needed} (a crossing pair, a "
+                         f"formation of up to formation_size = {scenes.formation_size_max}, one aircraft entering and "
+                         "one leaving coverage)")
+    capacity = int(2.0 * radar.range_max_m ** 2 / (math.sqrt(3.0) / 2.0 * scenes.separation_m ** 2))
+    if scenes.aircraft > capacity:
+        raise ParamError(f"{p}.aircraft = {scenes.aircraft}: more than the {capacity} that fit the coverage box "
+                         f"(side sqrt(2) x radar.range_max_m) {scenes.separation_m:.0f} m apart (scenes.separation_m)")
+    resolution = formation_resolution_m(radar, scenes.situation_range_max_m)
+    if scenes.formation_spacing_min_m <= resolution:
+        raise ParamError(f"{p}.formation_spacing_m = {list(spacing)}: the closest formation, "
+                         f"{scenes.formation_spacing_min_m:.0f} m apart, is within the radar's resolution, "
+                         f"{resolution:.0f} m at {scenes.situation_range_max_m:.0f} m (the far end of "
+                         "scenes.situation_range_m)")
+    return scenes
+
+
+def formation_resolution_m(radar: Radar, range_m: float) -> float:
+    """A proxy of the radar's resolution at `range_m`: the larger of its range error and its
+    cross-range error (azimuth error times range), one sigma each. Two aircraft nearer than that
+    are hard to tell apart from their plots (the simulator gives each its own plot all the same:
+    it does not merge plots in one resolution cell)."""
+    return max(radar.sigma_range_m, range_m * math.radians(radar.sigma_azimuth_deg))
 
 
 def _start_time(text: Any) -> float:
@@ -793,15 +888,25 @@ def _evaluate(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> Evaluate:
                     gospa_cutoff_m=_positive(tree, "gospa_cutoff_m", p),
                     gospa_order=_number(tree, "gospa_order", p, 1.0),  # GOSPA is a metric for p >= 1
                     example_scenarios=_integer(tree, "example_scenarios", p), example_run=example_run,
-                    sites=_sites(tree, p), site_runs=_site_runs(tree, p, names))
+                    sites=_sites(tree, p), site_runs=_run_names(tree, "site_runs", p, names),
+                    scene_runs=_scene_runs(tree, p, names, example_run))
 
 
-def _site_runs(tree: Mapping[str, Any], p: str, names: list[str]) -> tuple[str, ...]:
-    """`evaluate.site_runs`: names of `evaluate.runs` (`<method>_<window>[_<rule>]`), each once."""
-    chosen = _get(tree, "site_runs", p)
+def _run_names(tree: Mapping[str, Any], key: str, p: str, names: list[str]) -> tuple[str, ...]:
+    """A list of names of `evaluate.runs` (`<method>_<window>[_<rule>]`), each once ([]: all of them)."""
+    chosen = _get(tree, key, p)
     if not isinstance(chosen, list) or any(name not in names for name in chosen) or len(set(chosen)) != len(chosen):
-        raise ParamError(f"{p}.site_runs = {chosen!r}: must list distinct names of the runs {names} ([]: all of them)")
+        raise ParamError(f"{p}.{key} = {chosen!r}: must list distinct names of the runs {names} ([]: all of them)")
     return tuple(chosen)
+
+
+def _scene_runs(tree: Mapping[str, Any], p: str, names: list[str], example_run: str) -> tuple[str, ...]:
+    """`evaluate.scene_runs`, which must hold `evaluate.example_run`: it draws reports/scene_example.png."""
+    chosen = _run_names(tree, "scene_runs", p, names)
+    if chosen and example_run not in chosen:
+        raise ParamError(f"{p}.scene_runs = {list(chosen)}: must include evaluate.example_run = {example_run!r}, "
+                         "whose tracks reports/scene_example.png draws")
+    return chosen
 
 
 SITE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a site's name labels report rows and keys
@@ -922,11 +1027,13 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
     simulate = _get(tree, "simulate", "params")
     windows = _windows(_get(tree, "windows", "params"))
     routes = _routes(_get(tree, "routes", "params"), aircraft, radar)
+    scenes = _scenes(_get(tree, "scenes", "params"), aircraft, radar)
     report = _get(tree, "report", "params")
     params = Params(
         radar=radar,
         aircraft=aircraft,
         routes=routes,
+        scenes=scenes,
         simulate_seed=_integer(simulate, "seed", "simulate"),
         example_routes=_integer(report, "example_routes", "report", 1),
         windows=windows,

@@ -115,8 +115,9 @@ def tracker_table(summary: dict) -> str:
 
 def comparison_section(comparison: dict) -> str:
     """Who wins, every tracker in one table, track continuity, GOSPA and its parts (reports before
-    GOSPA have none), the networks against the tuned filters, and each tracker's position error at
-    the other radar sites (reports before `evaluate_sites` have none)."""
+    GOSPA have none), the many-aircraft scenes (reports before them have none), the networks against
+    the tuned filters, and each tracker's position error at the other radar sites (reports before
+    `evaluate_sites` have none)."""
     gospa = compare_stage.gospa_table(comparison["trackers"])
     return "\n\n".join([
         "\n".join(compare_stage.verdict(comparison["trackers"], comparison["holdout"])),
@@ -125,6 +126,10 @@ def comparison_section(comparison: dict) -> str:
         compare_stage.continuity_table(comparison["trackers"], comparison.get("by_strategy", {})),
         *(["GOSPA and its parts (m; the parts add up to GOSPA), track switches, tracks assigned per aircraft and track "
            "purity, best GOSPA first (`pipeline/gospa.py`):", gospa] if gospa else []),
+        *([f"{compare_stage.SCENES_TITLE} ({comparison['scenes']['scenes']} scenes of "
+            f"{comparison['scenes']['aircraft_per_scene']} aircraft; `reports/comparison.md` says how they are made "
+            "and scored):", compare_stage.scenes_table(comparison["scenes"]["runs"])]
+          if "scenes" in comparison else []),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         compare_stage.holdout_table(comparison["holdout"]),
         *compare_stage.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"])])

@@ -42,15 +42,15 @@ it is exact to well under a millimetre per second rather than a finite differenc
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
 from pipeline import geodesy, io
-from pipeline.params import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, Params, RandomTurns, Radar, Split,
-                             SustainedTurns)
+from pipeline.params import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, Params, RandomTurns, Radar, Routes,
+                             Split, SustainedTurns)
 
 DIFFERENTIATION_STEP_S = 0.05
 
@@ -176,7 +176,7 @@ def plan_constant_jerk(rng: np.random.Generator, kind: Aircraft, cfg: ConstantJe
         f"routes.constant_jerk.min_leg_m/max_leg_m or aircraft.{kind.name}.max_acceleration_mps2")
 
 
-def _max_turn_rate(kind: Aircraft, speed: float, acceleration: float) -> float:
+def max_turn_rate(kind: Aircraft, speed: float, acceleration: float) -> float:
     """Fastest turn (rad/s) at `speed` within the type's turn rate and a centripetal `acceleration`."""
     return min(np.radians(kind.max_turn_rate_dps), acceleration / speed)
 
@@ -195,7 +195,7 @@ def _turn_sequence(rng: np.random.Generator, total_s: float, max_rate: float, du
     return np.array(starts), np.array(rates)
 
 
-def _coordinated_turns(origin: np.ndarray, heading: float, speed: float, starts: np.ndarray,
+def coordinated_turns(origin: np.ndarray, heading: float, speed: float, starts: np.ndarray,
                        rates: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """Closed-form position of constant-speed flight through constant-rate turns (heading from north)."""
     durations = np.diff(np.append(starts, np.inf))
@@ -249,9 +249,9 @@ def plan_random_turns(rng: np.random.Generator, kind: Aircraft, cfg: RandomTurns
         heading = rng.uniform(0.0, 2.0 * np.pi)
         speed = rng.uniform(kind.speed_min_mps, kind.speed_max_mps)
         length = rng.uniform(cfg.length_min_m, cfg.length_max_m)
-        starts, rates = _turn_sequence(rng, length / speed, _max_turn_rate(kind, speed, kind.max_acceleration_mps2),
+        starts, rates = _turn_sequence(rng, length / speed, max_turn_rate(kind, speed, kind.max_acceleration_mps2),
                                        cfg.turn_duration_min_s, cfg.turn_duration_max_s, step_s)
-        position = _coordinated_turns(origin, heading, speed, starts, rates)
+        position = coordinated_turns(origin, heading, speed, starts, rates)
         end = _time_in_coverage(position, length / speed, box, step_s)
         if end * speed >= cfg.min_length_m:
             return PlannedRoute(duration_s=end, position=position)
@@ -290,9 +290,9 @@ def plan_sustained_turns(rng: np.random.Generator, kind: Aircraft, cfg: Sustaine
         heading = rng.uniform(0.0, 2.0 * np.pi)
         speed = rng.uniform(kind.holding_speed_min_mps, kind.holding_speed_max_mps)
         rate = min(np.radians(rng.uniform(cfg.turn_rate_min_dps, cfg.turn_rate_max_dps)),
-                   _max_turn_rate(kind, speed, kind.max_acceleration_mps2))
+                   max_turn_rate(kind, speed, kind.max_acceleration_mps2))
         durations, rates = _sustained_turn_segments(rng, cfg, rate, step_s)
-        position = _coordinated_turns(origin, heading, speed, np.cumsum(durations) - durations, rates)
+        position = coordinated_turns(origin, heading, speed, np.cumsum(durations) - durations, rates)
         duration = float(durations.sum())
         if box.contains(position(_sample_times(duration, step_s))).all():
             return PlannedRoute(duration_s=duration, position=position)
@@ -377,9 +377,9 @@ def plan_climb_dive(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, bo
         heading = rng.uniform(0.0, 2.0 * np.pi)
         speed = rng.uniform(kind.speed_min_mps, climb_speed_max_mps(kind))
         total = rng.uniform(cfg.length_min_m, cfg.length_max_m) / speed
-        max_rate = min(np.radians(cfg.turn_rate_dps), _max_turn_rate(kind, speed, turn_acceleration))
+        max_rate = min(np.radians(cfg.turn_rate_dps), max_turn_rate(kind, speed, turn_acceleration))
         starts, rates = _turn_sequence(rng, total, max_rate, cfg.turn_duration_min_s, cfg.turn_duration_max_s, step_s)
-        horizontal = _coordinated_turns(origin, heading, speed, starts, rates)
+        horizontal = coordinated_turns(origin, heading, speed, starts, rates)
         knots, accelerations = _climbs_and_dives(rng, kind, cfg, origin[2], total, vertical_acceleration)
         position = _with_altitude(horizontal, _vertical_profile(origin[2], knots, accelerations))
         end = _time_in_coverage(position, total, box, step_s)
@@ -415,28 +415,33 @@ def _ecef_at(planned: PlannedRoute, t: np.ndarray, radar: Radar) -> np.ndarray:
     return geodesy.geodetic_to_ecef(lat, lon, alt)
 
 
-def _draw_aircraft(rng: np.random.Generator, split: Split, aircraft: dict[str, Aircraft]) -> Aircraft:
-    names = sorted(split.aircraft_mix)
-    weights = np.array([split.aircraft_mix[name] for name in names])
+def draw_aircraft(rng: np.random.Generator, mix: Mapping[str, float], aircraft: Mapping[str, Aircraft]) -> Aircraft:
+    """An aircraft type drawn by the weights of `mix` (type name -> weight)."""
+    names = sorted(mix)
+    weights = np.array([mix[name] for name in names])
     return aircraft[names[int(rng.choice(len(names), p=weights / weights.sum()))]]
+
+
+def plan_route(rng: np.random.Generator, strategy: str, kind: Aircraft, routes: Routes, box: CoverageBox
+               ) -> PlannedRoute:
+    """A route of `strategy` (one of STRATEGIES) for an aircraft of type `kind`."""
+    step = routes.sample_interval_s
+    if strategy == "constant_jerk":
+        return plan_constant_jerk(rng, kind, routes.constant_jerk, box)
+    if strategy == "random_turns":
+        return plan_random_turns(rng, kind, routes.random_turns, box, step)
+    if strategy == "sustained_turns":
+        return plan_sustained_turns(rng, kind, routes.sustained_turns, box, step)
+    return plan_climb_dive(rng, kind, routes.climb_dive, box, step)
 
 
 def generate_route(params: Params, split: Split, strategy: str, index: int, route_id: int) -> pa.Table:
     """One route of a split. Its random stream depends only on (split seed, strategy, index)."""
     rng = np.random.default_rng([split.seed, STRATEGIES.index(strategy), index])
     routes, radar = params.routes, params.radar
-    kind = _draw_aircraft(rng, split, dict(params.aircraft))
+    kind = draw_aircraft(rng, split.aircraft_mix, params.aircraft)
     start = routes.start_time_unix_s + rng.uniform(0.0, routes.start_spread_s)
-    box = CoverageBox.of(radar)
-    step = routes.sample_interval_s
-    if strategy == "constant_jerk":
-        planned = plan_constant_jerk(rng, kind, routes.constant_jerk, box)
-    elif strategy == "random_turns":
-        planned = plan_random_turns(rng, kind, routes.random_turns, box, step)
-    elif strategy == "sustained_turns":
-        planned = plan_sustained_turns(rng, kind, routes.sustained_turns, box, step)
-    else:
-        planned = plan_climb_dive(rng, kind, routes.climb_dive, box, step)
+    planned = plan_route(rng, strategy, kind, routes, CoverageBox.of(radar))
     columns = sample_route(planned, start, routes.sample_interval_s, radar)
     n = len(columns["time_unix_s"])
     columns = {"route_id": np.full(n, route_id, np.int32), "strategy": [strategy] * n,

@@ -2,7 +2,9 @@
 
 One scenario per route: one aircraft and the clutter of the scans it spans. Each
 scenario draws from its own random stream (simulate seed, split seed, route id), so a
-scenario's plots do not change when other routes are added or removed.
+scenario's plots do not change when other routes are added or removed. The pieces, one
+aircraft's plots (`aircraft_plots`) and the clutter of a time span (`false_plots`), also make
+the multi-target scenes (`pipeline.scenes`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
 from pipeline import geodesy, io, radar as radar_model
-from pipeline.params import Params, Split
+from pipeline.params import Params, Radar, Split
+from pipeline.plot_table import NO_TARGET
 
 PLOT_SCHEMA = io.schema(
     ("scenario_id", pa.int32()),
@@ -90,20 +93,19 @@ def trajectory_of(route: dict[str, np.ndarray]) -> CubicHermiteSpline:
     return CubicHermiteSpline(route["time_unix_s"], position, velocity)
 
 
-def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
-                      ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Plots (target and false, unsorted, without plot ids) and per-scan truth of one route.
+def aircraft_plots(params: Params, route: dict[str, np.ndarray], detection_rng: np.random.Generator,
+                   noise_rng: np.random.Generator, scenario_id: int, target_id: int
+                   ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """One aircraft's plots (unsorted, without plot ids) and its per-scan truth, labelled with
+    `scenario_id` and `target_id`.
 
-    Detections, measurement noise and clutter each draw from their own stream, and every beam
-    crossing gets its noise whether detected or not: a plot's noise and the clutter never depend
-    on which other plots were detected. So the same flight past a radar at another site, where
-    the local earth curvature hides one more plot below the horizon, differs by that plot only.
+    Detections and measurement noise draw from their own streams, and every beam crossing gets its
+    noise whether detected or not: a plot's noise never depends on which other plots were detected.
+    So the same flight past a radar at another site, where the local earth curvature hides one
+    more plot below the horizon, differs by that plot only.
     """
     radar = params.radar
-    route_id = int(route["route_id"][0])
     kind = params.aircraft[str(route["aircraft_type"][0])]
-    detection_rng, noise_rng, clutter_rng = (np.random.default_rng([params.simulate_seed, split.seed, route_id, stream])
-                                             for stream in range(3))
     trajectory = trajectory_of(route)
     start, end = float(route["time_unix_s"][0]), float(route["time_unix_s"][-1])
 
@@ -115,43 +117,71 @@ def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
     covered = radar_model.in_coverage(true_range, true_altitude, geodesy.elevation_deg(true_ecef, radar), radar)
     detected = radar_model.detect(detection_rng, snr, radar) & covered
     truth = {
-        "scenario_id": np.full(len(scan), route_id, np.int32), "target_id": np.full(len(scan), route_id, np.int32),
+        "scenario_id": np.full(len(scan), scenario_id, np.int32), "target_id": np.full(len(scan), target_id, np.int32),
         "scan": scan, "time_unix_s": crossing,
         "x_ecef_m": true_ecef[:, 0], "y_ecef_m": true_ecef[:, 1], "z_ecef_m": true_ecef[:, 2],
         "range_m": true_range, "azimuth_deg": true_azimuth, "altitude_m": true_altitude, "in_coverage": covered,
         "snr_db": 10.0 * np.log10(snr), "detection_probability": np.where(covered, radar_model.detection_probability(
             snr, radar), 0.0), "detected": detected,
     }
-
     noisy = [values[detected] for values in radar_model.add_measurement_noise(
         noise_rng, true_range, true_azimuth, true_altitude, radar)]
+    measured = radar_model.measure(crossing[detected], *noisy, radar=radar,
+                                   reference_unix_s=scan[detected] * radar.scan_period_s)
+    # Truth at the recorded (quantised) plot time, so a plot pairs with the truth at its own time stamp.
+    plot_truth = trajectory(np.clip(measured.time_unix_s, start, end))
+    return _plot_columns(measured, scan[detected], scenario_id, target_id, plot_truth, radar), truth
+
+
+def false_plots(params: Params, clutter_rng: np.random.Generator, start: float, end: float, scenario_id: int
+                ) -> dict[str, np.ndarray]:
+    """The clutter of the scans overlapping [start, end] (Unix s) that falls within it (unsorted,
+    without plot ids): `radar.false_plots_per_scan` a scan on average, drawn from `clutter_rng`."""
+    radar = params.radar
     false_scan, false_time, *false_measured = radar_model.false_plot_draws(
         clutter_rng, radar_model.scan_numbers(start, end, radar), radar)
     in_span = (false_time >= start) & (false_time <= end)
-    n_target, n_false = int(detected.sum()), int(in_span.sum())
-    all_scan = np.concatenate([scan[detected], false_scan[in_span]])
-    measured = radar_model.measure(
-        np.concatenate([crossing[detected], false_time[in_span]]),
-        *(np.concatenate([target_part, false_part[in_span]]) for target_part, false_part in zip(noisy, false_measured)),
-        radar=radar, reference_unix_s=all_scan * radar.scan_period_s)
-    is_target = np.concatenate([np.ones(n_target, bool), np.zeros(n_false, bool)])
-    # Truth at the recorded (quantised) plot time, so a plot pairs with the truth at its own time stamp.
-    plot_truth = np.full((n_target + n_false, 3), np.nan)
-    plot_truth[is_target] = trajectory(np.clip(measured.time_unix_s[is_target], start, end))
-    plots = {
-        "scenario_id": np.full(n_target + n_false, route_id, np.int32),
-        "radar_id": np.full(n_target + n_false, radar.radar_id, np.int32),
-        "scan": all_scan, "time_of_day_s": measured.time_of_day_s, "time_unix_s": measured.time_unix_s,
+    measured = radar_model.measure(false_time[in_span], *(values[in_span] for values in false_measured), radar=radar,
+                                   reference_unix_s=false_scan[in_span] * radar.scan_period_s)
+    return _plot_columns(measured, false_scan[in_span], scenario_id, NO_TARGET,
+                         np.full((int(in_span.sum()), 3), np.nan), radar)
+
+
+def _plot_columns(measured: radar_model.Measurements, scan: np.ndarray, scenario_id: int, target_id: int,
+                  plot_truth: np.ndarray, radar: Radar) -> dict[str, np.ndarray]:
+    """PLOT_SCHEMA's columns but the plot id for N measured plots of one target (or of none:
+    NO_TARGET) with their scans (N,) and true positions (N, 3) m ECEF (NaN for false plots)."""
+    count = len(scan)
+    return {
+        "scenario_id": np.full(count, scenario_id, np.int32), "radar_id": np.full(count, radar.radar_id, np.int32),
+        "scan": scan, "time_of_day_s": measured.time_of_day_s, "time_unix_s": measured.time_unix_s,
         "range_m": measured.range_m, "azimuth_deg": measured.azimuth_deg, "flight_level": measured.flight_level,
         "altitude_m": measured.altitude_m,
         "x_ecef_m": measured.ecef[:, 0], "y_ecef_m": measured.ecef[:, 1], "z_ecef_m": measured.ecef[:, 2],
-        "is_target": is_target, "target_id": np.where(is_target, route_id, -1).astype(np.int32),
+        "is_target": np.full(count, target_id != NO_TARGET), "target_id": np.full(count, target_id, np.int32),
         "true_x_ecef_m": plot_truth[:, 0], "true_y_ecef_m": plot_truth[:, 1], "true_z_ecef_m": plot_truth[:, 2],
     }
-    return plots, truth
 
 
-def _routes_by_id(routes: pa.Table) -> list[dict[str, np.ndarray]]:
+def simulate_scenario(params: Params, split: Split, route: dict[str, np.ndarray]
+                      ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Plots (target and false, unsorted, without plot ids) and per-scan truth of one route: its
+    aircraft (`aircraft_plots`) and the clutter of the scans it spans (`false_plots`).
+
+    Detections, measurement noise and clutter each draw from their own stream, seeded by
+    (simulate seed, split seed, route id), and no draw depends on the site (see `aircraft_plots`).
+    """
+    route_id = int(route["route_id"][0])
+    detection_rng, noise_rng, clutter_rng = (np.random.default_rng([params.simulate_seed, split.seed, route_id, stream])
+                                             for stream in range(3))
+    target, truth = aircraft_plots(params, route, detection_rng, noise_rng, route_id, route_id)
+    clutter = false_plots(params, clutter_rng, float(route["time_unix_s"][0]), float(route["time_unix_s"][-1]),
+                          route_id)
+    return {name: np.concatenate([target[name], clutter[name]]) for name in target}, truth
+
+
+def routes_by_id(routes: pa.Table) -> list[dict[str, np.ndarray]]:
+    """Each route's ROUTE_COLUMNS (rows of one route id together), in table order."""
     columns = {name: routes.column(name).to_numpy(zero_copy_only=False) for name in ROUTE_COLUMNS}
     ids = columns["route_id"]
     boundaries = np.flatnonzero(np.diff(ids)) + 1
@@ -163,15 +193,25 @@ def simulate_split(params: Params, split: Split, routes: pa.Table,
                    progress: Callable[[int, int], None] | None = None) -> tuple[pa.Table, pa.Table]:
     """Plots (time-ordered within each scenario, plot ids numbered in that order) and truth."""
     plot_parts, truth_parts = [], []
-    scenarios = _routes_by_id(routes)
+    scenarios = routes_by_id(routes)
     for done, route in enumerate(scenarios, start=1):
         plots, truth = simulate_scenario(params, split, route)
-        order = np.lexsort((~plots["is_target"], plots["time_unix_s"]))
-        plot_parts.append({name: values[order] for name, values in plots.items()})
+        plot_parts.append(plots)
         truth_parts.append(truth)
         if progress is not None:
             progress(done, len(scenarios))
-    plots = _concatenate(plot_parts, PLOT_SCHEMA, skip=("plot_id",))
+    return tables(plot_parts, truth_parts)
+
+
+def tables(plot_parts: list[dict[str, np.ndarray]], truth_parts: list[dict[str, np.ndarray]]
+           ) -> tuple[pa.Table, pa.Table]:
+    """The plots of scenarios (each part one scenario's, put in time order, target plots first at
+    equal times; plot ids numbered in that order) and their truth, as PLOT_SCHEMA and TRUTH_SCHEMA tables."""
+    ordered = []
+    for plots in plot_parts:
+        order = np.lexsort((~plots["is_target"], plots["time_unix_s"]))
+        ordered.append({name: values[order] for name, values in plots.items()})
+    plots = _concatenate(ordered, PLOT_SCHEMA, skip=("plot_id",))
     plots["plot_id"] = np.arange(len(plots["scenario_id"]), dtype=np.int64)
     return (pa.Table.from_pydict(plots, schema=PLOT_SCHEMA),
             pa.Table.from_pydict(_concatenate(truth_parts, TRUTH_SCHEMA), schema=TRUTH_SCHEMA))

@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute  # noqa: F401  (pa.compute)
 
-from pipeline import figures, io, materials, routes, simulate, windows
+from pipeline import figures, io, materials, routes, scenes, simulate, windows
 from pipeline.data_summary import summarise_split
 from pipeline.params import Params
 from pipeline.progress import progress_logger
@@ -43,6 +43,16 @@ def run_simulate(params: Params, routes_dir: Path, out_dir: Path) -> None:
         targets = sum(plots.column("is_target").to_pylist())
         log.info("simulate %s: %d target plots, %d false plots -> %s", name, targets, plots.num_rows - targets,
                  out_dir / name)
+
+
+def run_scenes(params: Params, out_dir: Path) -> None:
+    """Stage `scenes`: the multi-target scenes' routes, plots, per-scan truth and radar description."""
+    route_table, plots, truth = scenes.generate_scenes(params, progress_logger("scenes"))
+    io.write_parquet(route_table, out_dir / "routes.parquet")
+    simulate.write_split(plots, truth, simulate.radar_description(params), out_dir)
+    targets = sum(plots.column("is_target").to_pylist())
+    log.info("scenes: %d scenes of %d aircraft, %d target plots, %d false plots -> %s", params.scenes.count,
+             params.scenes.aircraft, targets, plots.num_rows - targets, out_dir)
 
 
 def run_data_report(params: Params, routes_dir: Path, simulated_dir: Path, reports_dir: Path) -> None:

@@ -28,13 +28,14 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     for split in tree["routes"]["splits"].values():
         split.update(dict.fromkeys(STRATEGIES, routes_per_strategy))
     tree["report"]["example_routes"] = 1
+    tree["scenes"].update(count=1, aircraft=6, duration_s=180.0, formation_size=[2, 2])  # the situations, no others
     tree["windows"]["holdout_fraction"] = 0.25  # a handful of segments: 5 % would hold out none
     for network in ("filter", "predictor", "autoencoder"):
         tree["training"][network]["epochs"] = 2
         tree["training"][network]["early_stopping_patience"] = 0  # runs of a fixed length, as tests expect
         tree["training"][network]["lr_decay_patience"] = 1
     tree["kalman_net"].update(epochs=1, baseline_epochs=1, segment_plots=16, truncation_steps=8)  # seconds
-    tree["evaluate"]["site_runs"] = []  # every run of the few below
+    tree["evaluate"]["site_runs"] = tree["evaluate"]["scene_runs"] = []  # every run of the few below
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0},
                                 {"method": "kalman_cv", "window_m": 4000.0}]
     tree["evaluate"]["example_scenarios"] = 1

@@ -59,7 +59,7 @@ def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
 
 
 def evaluate(inputs: tuple[Path, Path, Path], workers: int, reports: Path) -> Path:
-    params = tf.make_params({**TEST_SPLIT, "evaluate.runs": RUNS, "evaluate.site_runs": [], "evaluate.example_scenarios": 2,
+    params = tf.make_params({**TEST_SPLIT, "evaluate.runs": RUNS, "evaluate.site_runs": [], "evaluate.scene_runs": [], "evaluate.example_scenarios": 2,
                              "evaluate.example_run": "via_4000", "compute.workers": workers})
     run_evaluate(params, *inputs, reports)
     return reports

@@ -173,7 +173,7 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
     naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
     that does not exist is named with its run."""
-    params_tree["evaluate"]["site_runs"] = []
+    params_tree["evaluate"]["site_runs"] = params_tree["evaluate"]["scene_runs"] = []
     params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                        {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs

@@ -38,7 +38,7 @@ def one_route(tmp_path_factory: pytest.TempPathFactory):
     folder with the filters at their start values (no network needed)."""
     params = tf.make_params({"routes.splits.test.constant_jerk": 0, "routes.splits.test.random_turns": 1,
                              "routes.splits.test.sustained_turns": 0, "routes.splits.test.climb_dive": 0,
-                             "evaluate.site_runs": [],
+                             "evaluate.site_runs": [], "evaluate.scene_runs": [],
                              "evaluate.runs": [{"method": "kalman_cv", "window_m": 4000.0},
                                                {"method": "imm", "window_m": 4000.0}],
                              "evaluate.example_run": "kalman_cv_4000", "compute.workers": 1})
@@ -147,7 +147,7 @@ def test_site_comparison_marks_what_moves_more_than_the_tolerance():
 
 def test_stale_evaluate_metrics_are_refused(tmp_path: Path):
     """The training site's row must be of params' runs: metrics of other runs name the stage to rerun."""
-    params = tf.make_params({"evaluate.site_runs": [], "evaluate.runs": [{"method": "kalman_cv", "window_m": 4000.0}],
+    params = tf.make_params({"evaluate.site_runs": [], "evaluate.scene_runs": [], "evaluate.runs": [{"method": "kalman_cv", "window_m": 4000.0}],
                              "evaluate.example_run": "kalman_cv_4000"})
     io.write_json({"runs": {"via_4000": {"MAE": 1.0}}}, tmp_path / "tracker_metrics.json")
     with pytest.raises(io.InputError, match=r"runs \['via_4000'\], but params evaluate \['kalman_cv_4000', "
