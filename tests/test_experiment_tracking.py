@@ -14,7 +14,9 @@ from urllib.parse import urlparse
 import mlflow
 import pytest
 
-from pipeline.experiment_tracking import TrackingError, check_tracking_store, run_tags, tracking_uri
+from pipeline.experiment_tracking import (EXPERIMENT_KIND_TAG, MODEL_TRAINING, TrackingError, check_tracking_store,
+                                         run_tags, session, tracking_uri)
+from pipeline.params import parse_params
 from tests.project import environment
 
 EXPERIMENT = "radar-nn-tracker"
@@ -187,3 +189,54 @@ def test_a_copied_store_is_refused_naming_both_folders_before_writing_into_the_o
     assert f"move {copy / 'mlflow.db'} aside" in message
     assert sorted(path for path in (original / "mlruns").rglob("*")) == before
     _log_run_with_artifact(f"sqlite:///{original / 'mlflow.db'}", model)
+
+
+def test_the_experiment_is_marked_as_model_training_so_the_ui_opens_on_its_runs(tmp_path: Path) -> None:
+    """MLflow 3's UI opens an experiment without a kind on its GenAI overview. A new experiment is
+    created marked `custom_model_development`; one made before (no kind, or a kind the UI only
+    inferred) is marked when a stage next starts; a kind a user chose is kept."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    check_tracking_store(uri, EXPERIMENT, "train_filter")
+    assert client.get_experiment_by_name(EXPERIMENT).tags[EXPERIMENT_KIND_TAG] == MODEL_TRAINING
+    for kind, kept in ((None, MODEL_TRAINING), ("genai_development_inferred", MODEL_TRAINING),
+                       ("finetuning", "finetuning")):
+        name = f"older-{kind}"
+        older = client.create_experiment(name, artifact_location=str(tmp_path / "mlruns" / name))
+        if kind is not None:
+            client.set_experiment_tag(older, EXPERIMENT_KIND_TAG, kind)
+        check_tracking_store(uri, name, "train_filter")
+        assert client.get_experiment(older).tags[EXPERIMENT_KIND_TAG] == kept, kind
+
+
+def test_stages_of_one_experiment_share_its_name_as_session_and_a_repro_its_code_and_params(
+        params_tree, monkeypatch) -> None:
+    """`pipeline.session`: DVC's experiment name inside `dvc exp run`; otherwise the same for the
+    same code and params, and another for other params."""
+    params = parse_params(params_tree)
+    monkeypatch.setenv("DVC_EXP_NAME", "wider-predictor")
+    assert session(params) == "wider-predictor"
+    monkeypatch.delenv("DVC_EXP_NAME")
+    repro = session(params)
+    assert repro.startswith("repro-") and repro == session(parse_params(params_tree))
+    params_tree["training"]["predictor"]["hidden"] = [64, 64]
+    assert session(parse_params(params_tree)) != repro
+
+
+def test_two_stages_started_at_once_on_a_fresh_store_both_log_their_run(tmp_path: Path) -> None:
+    """Two stages of parallel experiments start together on a store that does not exist yet: both
+    create it and the experiment without failing (MLflow's first-use migration is not safe for two
+    processes at once), and both runs are there with their params."""
+    repository = tmp_path / "repository"
+    repository.mkdir()
+    (repository / "log_run.py").write_text(LOG_RUN)
+    (repository / "params.yaml").write_text("learning_rate: 0.001\n")
+    env = {**environment(), "DVC_ROOT": str(repository)}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    stages = [subprocess.Popen([sys.executable, "log_run.py"], cwd=repository, env=env, stderr=subprocess.PIPE,
+                               text=True) for _ in range(2)]
+    errors = [stage.communicate()[1] for stage in stages]
+    assert [stage.returncode for stage in stages] == [0, 0], "\n".join(error[-2000:] for error in errors)
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
+    runs = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
+    assert len(runs) == 2 and all(run.data.params["learning_rate"] == "0.001" for run in runs)
