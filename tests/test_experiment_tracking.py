@@ -8,6 +8,7 @@ import logging
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -108,11 +109,10 @@ with mlflow.start_run(run_name="log_run", tags=run_tags("log_run")):
 '''
 
 
-def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_store(tmp_path: Path) -> None:
-    """`dvc exp run --temp` (what `dvc queue start` does for each queued experiment) runs the
-    stage in .dvc/tmp/exps/ and deletes that copy: its run, params and artifact are in the
-    repository's mlflow.db and mlruns/ afterwards."""
-    repository = tmp_path / "repository"
+def _repository_with_a_logging_stage(folder: Path) -> tuple[Path, dict[str, str]]:
+    """A committed DVC repository whose one stage logs a run as the pipeline's stages do, and the
+    environment to run DVC in (no MLFLOW_TRACKING_URI: the stage's relative store decides)."""
+    repository = folder / "repository"
     repository.mkdir()
     (repository / "log_run.py").write_text(LOG_RUN)
     (repository / "params.yaml").write_text("learning_rate: 0.001\n")
@@ -123,18 +123,60 @@ def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_stor
            "GIT_COMMITTER_NAME": "test", "GIT_COMMITTER_EMAIL": "test@example.invalid"}
     env.pop("MLFLOW_TRACKING_URI", None)
     for command in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"],
-                    ["git", "add", "-A"], ["git", "commit", "-q", "-m", "a stage that logs a run"],
-                    [sys.executable, "-m", "dvc", "exp", "run", "--temp", "-S", "learning_rate=0.002"]):
-        result = subprocess.run(command, cwd=repository, env=env, capture_output=True, text=True)
-        assert result.returncode == 0, f"{' '.join(command)}:\n{result.stdout}\n{result.stderr[-3000:]}"
+                    ["git", "add", "-A"], ["git", "commit", "-q", "-m", "a stage that logs a run"]):
+        _run(command, repository, env)
+    return repository, env
 
+
+def _run(command: list[str], repository: Path, env: dict[str, str]) -> str:
+    result = subprocess.run(command, cwd=repository, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, f"{' '.join(command)}:\n{result.stdout}\n{result.stderr[-3000:]}"
+    return result.stdout
+
+
+def _repository_runs(repository: Path) -> list[mlflow.entities.Run]:
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
     experiment = client.get_experiment_by_name(EXPERIMENT)
     assert experiment is not None, "no run reached the repository's mlflow.db"
-    runs = client.search_runs([experiment.experiment_id])
+    return client.search_runs([experiment.experiment_id])
+
+
+def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_store(tmp_path: Path) -> None:
+    """`dvc exp run --temp` (what `dvc queue start` does for each queued experiment) runs the
+    stage in .dvc/tmp/exps/ and deletes that copy: its run, params and artifact are in the
+    repository's mlflow.db and mlruns/ afterwards."""
+    repository, env = _repository_with_a_logging_stage(tmp_path)
+    _run([sys.executable, "-m", "dvc", "exp", "run", "--temp", "-S", "learning_rate=0.002"], repository, env)
+    runs = _repository_runs(repository)
     assert [run.data.params["learning_rate"] for run in runs] == ["0.002"]
     artifacts = _local_path(runs[0].info.artifact_uri)
     assert artifacts.is_relative_to(repository / "mlruns") and (artifacts / "params.yaml").is_file()
+
+
+QUEUE_TIMEOUT_S = 300
+
+
+def test_two_queued_experiments_run_two_at_a_time_both_log_to_the_repositorys_store(tmp_path: Path) -> None:
+    """The README's sweep: `dvc exp run --queue -S 'learning_rate=0.002,0.003'` queues two
+    experiments, `dvc queue start -j 2` runs them in two workers at once, each in its own
+    temporary copy, on a store neither has created yet: both runs are in the repository's store,
+    each with its params."""
+    repository, env = _repository_with_a_logging_stage(tmp_path)
+    dvc = [sys.executable, "-m", "dvc"]
+    _run([*dvc, "exp", "run", "--queue", "-S", "learning_rate=0.002,0.003"], repository, env)
+    _run([*dvc, "queue", "start", "-j", "2"], repository, env)
+    try:
+        deadline = time.monotonic() + QUEUE_TIMEOUT_S
+        while True:
+            status = _run([*dvc, "queue", "status"], repository, env)
+            if "Queued" not in status and "Running" not in status:
+                break
+            assert time.monotonic() < deadline, f"the queue did not finish in {QUEUE_TIMEOUT_S} s:\n{status}"
+            time.sleep(2)
+    finally:
+        _run([*dvc, "queue", "stop"], repository, env)
+    assert status.count("Success") == 2, status
+    assert sorted(run.data.params["learning_rate"] for run in _repository_runs(repository)) == ["0.002", "0.003"]
 
 
 def _local_path(artifact_uri: str) -> Path:
