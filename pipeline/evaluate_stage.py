@@ -44,9 +44,9 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
                 continue
             mlflow.set_tags({f"model.{kind}.version": version.version,
                              f"model.{kind}.uri": f"models:/{version.name}/{version.version}"})
-        used = [LoggedModelInput(version.model_id) for version in versions.values() if version and version.model_id]
-        if used:
-            client.log_inputs(run.info.run_id, models=used)
+        used = [mlflow_models.logged_model_id(version) for version in versions.values() if version is not None]
+        if any(used):
+            client.log_inputs(run.info.run_id, models=[LoggedModelInput(model_id) for model_id in used if model_id])
         mlflow.log_params({"runs": [entry.name for entry in params.evaluate.runs], "split": split,
                            **{f"tracker.{k}": v for k, v in vars(params.tracker).items()}})
 

@@ -34,7 +34,10 @@ What the UI groups by: every run is tagged `pipeline.session`, the same for ever
 plain `dvc repro` or a stage run by hand, for every stage of the same code and params
 (`repro-<commit>-<params digest>`): DVC gives a plain repro no name, and a rerun of the same code
 on the same params is the same configuration. The experiment is marked as model training
-(`mlflow.experimentKind`), so MLflow 3's UI opens it on its runs table, not on its GenAI overview.
+(`mlflow.experimentKind`), its kind for MLflow's API and for the UIs of MLflow 3 that open an
+experiment by its kind; the UI of MLflow 3.17 goes by the view in its address
+(`?workflowType=machine_learning`, which the README's address has) or the one the browser last
+chose, and opens a new browser on the GenAI overview, which has no runs table.
 """
 
 from __future__ import annotations
@@ -64,8 +67,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("pipeline")
 
 EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
-# MLflow 3's UI (mlflow/server/js): an experiment of this kind opens on its runs table.
-MODEL_TRAINING = "custom_model_development"
+MODEL_TRAINING = "custom_model_development"  # MLflow 3's kind of a model-training experiment
 SESSION_TAG = "pipeline.session"
 DVC_EXPERIMENT_TAG = "dvc.experiment"
 

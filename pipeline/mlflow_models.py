@@ -100,6 +100,13 @@ def log_network(kind: str, network: nn.Module, windows: np.ndarray, experiment: 
     return client.get_model_version(name, version)
 
 
+def logged_model_id(version: ModelVersion) -> str | None:
+    """The id of the logged model a registered version was made from. A SQL store's versions
+    leave `model_id` empty and name the logged model in their source, `models:/<model id>`."""
+    source = version.source or ""
+    return version.model_id or (source.removeprefix("models:/") if source.startswith("models:/m-") else None)
+
+
 def versions_used(client: MlflowClient, experiment: str, models_dir: Path) -> dict[str, ModelVersion | None]:
     """For each network, the registered version whose training wrote the bundle in `models_dir`
     now (the newest, if the same bundle was registered more than once); None if none did (the

@@ -8,7 +8,6 @@ import logging
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -19,6 +18,7 @@ from pipeline.experiment_tracking import (EXPERIMENT_KIND_TAG, MODEL_TRAINING, T
                                          run_tags, session, tracking_uri)
 from pipeline.params import parse_params
 from tests.project import environment
+from tests.servers import run_queue
 
 EXPERIMENT = "radar-nn-tracker"
 
@@ -153,29 +153,14 @@ def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_stor
     assert artifacts.is_relative_to(repository / "mlruns") and (artifacts / "params.yaml").is_file()
 
 
-QUEUE_TIMEOUT_S = 300
-
-
 def test_two_queued_experiments_run_two_at_a_time_both_log_to_the_repositorys_store(tmp_path: Path) -> None:
     """The README's sweep: `dvc exp run --queue -S 'learning_rate=0.002,0.003'` queues two
     experiments, `dvc queue start -j 2` runs them in two workers at once, each in its own
     temporary copy, on a store neither has created yet: both runs are in the repository's store,
     each with its params."""
     repository, env = _repository_with_a_logging_stage(tmp_path)
-    dvc = [sys.executable, "-m", "dvc"]
-    _run([*dvc, "exp", "run", "--queue", "-S", "learning_rate=0.002,0.003"], repository, env)
-    _run([*dvc, "queue", "start", "-j", "2"], repository, env)
-    try:
-        deadline = time.monotonic() + QUEUE_TIMEOUT_S
-        while True:
-            status = _run([*dvc, "queue", "status"], repository, env)
-            if "Queued" not in status and "Running" not in status:
-                break
-            assert time.monotonic() < deadline, f"the queue did not finish in {QUEUE_TIMEOUT_S} s:\n{status}"
-            time.sleep(2)
-    finally:
-        _run([*dvc, "queue", "stop"], repository, env)
-    assert status.count("Success") == 2, status
+    _run([sys.executable, "-m", "dvc", "exp", "run", "--queue", "-S", "learning_rate=0.002,0.003"], repository, env)
+    run_queue(repository, workers=2)
     assert sorted(run.data.params["learning_rate"] for run in _repository_runs(repository)) == ["0.002", "0.003"]
 
 
