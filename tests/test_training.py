@@ -388,7 +388,7 @@ for name in sys.argv[1:]:  # <kind>_<batch>: predict <name>.npy with the kind's 
 def test_a_logged_model_loaded_through_pyfunc_predicts_like_the_projects_loader(chain, registry, tmp_path):
     """`mlflow.pyfunc.load_model` on each registered version, in a Python process that cannot
     import `pipeline`, gives the outputs of `pipeline.model_store.load_model` on the bundle the
-    same run wrote, for windows it never saw, one window or several."""
+    same run wrote (to float32 rounding), for windows it never saw, one window or several."""
     rng = np.random.default_rng(3)
     windows = {f"{kind}_{size}": rng.normal(size=(size, config.input_steps, config.input_features)).astype(np.float32)
                for kind, config in CONFIGS.items() for size in (1, 7)}
@@ -400,7 +400,10 @@ def test_a_logged_model_loaded_through_pyfunc_predicts_like_the_projects_loader(
     for name, batch in windows.items():
         kind = name.split("_")[0]
         expected = load_model(chain / "models" / f"{kind}.pt", expected_kind=kind).predict(torch.from_numpy(batch))
-        np.testing.assert_array_equal(np.load(tmp_path / f"{name}_pyfunc.npy"), expected.numpy(), err_msg=name)
+        # To float32 rounding: the exported graph and the eager GRU may add in another order, and
+        # the two processes may run torch with different numbers of threads.
+        np.testing.assert_allclose(np.load(tmp_path / f"{name}_pyfunc.npy"), expected.numpy(), rtol=1e-5, atol=1e-6,
+                                   err_msg=name)
 
 
 def test_the_evaluate_stage_finds_the_registered_versions_of_the_bundles_it_uses(chain, trained, tmp_path):
