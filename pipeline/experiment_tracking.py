@@ -21,15 +21,37 @@ A stage killed outright (SIGKILL, the OOM killer, power loss) cannot end its run
 stay RUNNING for good. Every run is tagged with the host and pid of the process behind it, and
 when a stage starts it marks KILLED the RUNNING runs of the same stage on this host whose
 process is gone.
+
+Several stages may start at once on a store that does not exist yet (`dvc queue start -j 2`,
+`dvc exp run --run-all -j 2`): MLflow creates a SQLite store's tables and the experiment on
+first use, and two processes doing that together fail (an alembic migration that finds its row
+gone; an experiment that already exists). Stages on one local store take turns for that first
+step, under a lock on the store's folder, and an experiment another stage created meanwhile is
+used as it is.
+
+What the UI groups by: every run is tagged `pipeline.session`, the same for every stage of one
+`dvc exp run` (DVC's experiment name, which DVC passes to the stages in DVC_EXP_NAME) and, for a
+plain `dvc repro` or a stage run by hand, for every stage of the same code and params
+(`repro-<commit>-<params digest>`): DVC gives a plain repro no name, and a rerun of the same code
+on the same params is the same configuration. The experiment is marked as model training
+(`mlflow.experimentKind`), its kind for MLflow's API and for the UIs of MLflow 3 that open an
+experiment by its kind; the UI of MLflow 3.17 goes by the view in its address
+(`?workflowType=machine_learning`, which the README's address has) or the one the browser last
+chose, and opens a new browser on the GenAI overview, which has no runs table.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
+import json
 import logging
 import os
 import socket
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import unquote, urlparse
@@ -38,9 +60,16 @@ from urllib.request import pathname2url
 from pipeline.io import InputError, process_alive
 
 if TYPE_CHECKING:
-    from mlflow import MlflowClient
+    from mlflow import ActiveRun, MlflowClient
+
+    from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
+
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+MODEL_TRAINING = "custom_model_development"  # MLflow 3's kind of a model-training experiment
+SESSION_TAG = "pipeline.session"
+DVC_EXPERIMENT_TAG = "dvc.experiment"
 
 
 class TrackingError(RuntimeError):
@@ -106,22 +135,62 @@ def check_tracking_store(uri: str, experiment: str, stage: str) -> None:
 
     folder = _store_folder(uri)
     try:
-        client = mlflow.MlflowClient(tracking_uri=uri)
-        found = client.get_experiment_by_name(experiment)
-        if found is None:
-            # A SQLite store's default would be ./mlruns of wherever this stage runs from.
-            location = str(folder / "mlruns" / experiment) if uri.startswith("sqlite:") else None
-            experiment_id = client.create_experiment(experiment, artifact_location=location)
-        else:
-            experiment_id = found.experiment_id
-            if folder is not None:
-                _check_artifacts_in_store_folder(uri, folder, experiment, found.artifact_location)
+        with _first_use_lock(folder):
+            client = mlflow.MlflowClient(tracking_uri=uri)
+            found = client.get_experiment_by_name(experiment)
+            if found is None:
+                experiment_id = _create_experiment(client, experiment, folder, uri)
+            else:
+                experiment_id = found.experiment_id
+                if folder is not None:
+                    _check_artifacts_in_store_folder(uri, folder, experiment, found.artifact_location)
+                if _needs_kind(found.tags.get(EXPERIMENT_KIND_TAG)):
+                    client.set_experiment_tag(experiment_id, EXPERIMENT_KIND_TAG, MODEL_TRAINING)
         _close_killed_runs(client, experiment_id, stage)
     except TrackingError:
         raise
     except Exception as error:  # mlflow raises many types for an unreachable or broken store
         raise TrackingError(f"MLflow tracking store {uri!r} cannot be used: {type(error).__name__}: "
                             f"{str(error).splitlines()[0] if str(error) else ''}") from None
+
+
+@contextmanager
+def _first_use_lock(folder: Path | None) -> Iterator[None]:
+    """Hold an exclusive lock on a local store's folder (none for a server, which serialises its
+    own first use): the stages of parallel experiments create the store and the experiment one
+    at a time. A lock on the folder, not on a file in it, leaves nothing behind in the
+    repository; the kernel releases it if the process dies."""
+    if folder is None:
+        yield
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    handle = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(handle)  # releases the lock
+
+
+def _create_experiment(client: MlflowClient, experiment: str, folder: Path | None, uri: str) -> str:
+    """Create the experiment, marked as model training; if another process (on a server, which
+    the folder lock does not cover) created it meanwhile, use that one."""
+    # A SQLite store's default would be ./mlruns of wherever this stage runs from.
+    location = str(folder / "mlruns" / experiment) if uri.startswith("sqlite:") else None
+    try:
+        return client.create_experiment(experiment, artifact_location=location,
+                                        tags={EXPERIMENT_KIND_TAG: MODEL_TRAINING})
+    except Exception:
+        found = client.get_experiment_by_name(experiment)
+        if found is None:
+            raise
+        return found.experiment_id
+
+
+def _needs_kind(kind: str | None) -> bool:
+    """An experiment made before the pipeline marked its kind, or whose kind only the UI guessed
+    (MLflow writes `..._inferred` or `no_inferred_type`), is marked; a kind a user chose is kept."""
+    return kind is None or kind.endswith("_inferred") or kind == "no_inferred_type"
 
 
 def _check_artifacts_in_store_folder(uri: str, folder: Path, experiment: str, location: str) -> None:
@@ -151,6 +220,39 @@ def run_tags(stage: str) -> dict[str, str]:
     """The tags of a stage's run: the stage, the commit of the code, and the host and pid of the
     process, by which a later start of the stage tells a killed run from one still going."""
     return {"stage": stage, "git_commit": git_commit(), "host": socket.gethostname(), "pid": str(os.getpid())}
+
+
+def dvc_experiment() -> str | None:
+    """The name of the DVC experiment this stage runs in (`dvc exp run`, queued or not), or None."""
+    return os.environ.get("DVC_EXP_NAME") or None
+
+
+def session(params: Params) -> str:
+    """The value of the `pipeline.session` tag: the DVC experiment's name, else one name for the
+    same code on the same params (see the module's docstring)."""
+    named = dvc_experiment()
+    if named:
+        return named
+    digest = hashlib.sha256(json.dumps(asdict(params), sort_keys=True, default=str).encode()).hexdigest()
+    return f"repro-{git_commit()[:12]}-{digest[:8]}"
+
+
+@contextmanager
+def stage_run(uri: str, params: Params, stage: str, command: str,
+              tags: dict[str, str] | None = None) -> Iterator[ActiveRun]:
+    """The stage's MLflow run, open for as long as the block: opened before the stage's work, so
+    its duration in the UI is the work's, and ended FAILED if the block raises (Ctrl-C too).
+
+    Call `check_tracking_store` first, before any work, so a bad store stops the stage at once."""
+    import mlflow
+
+    mlflow.set_tracking_uri(uri)
+    mlflow.set_experiment(params.training.experiment)
+    named = dvc_experiment()
+    every_tag = {**run_tags(stage), SESSION_TAG: session(params), "mlflow.source.name": f"python -m pipeline {command}",
+                 **({DVC_EXPERIMENT_TAG: named} if named else {}), **(tags or {})}
+    with mlflow.start_run(run_name=stage, tags=every_tag) as run:
+        yield run
 
 
 def _close_killed_runs(client: MlflowClient, experiment_id: str, stage: str) -> None:

@@ -1,4 +1,5 @@
-"""The training stages: material -> trained network -> hold-out metrics, one MLflow run each.
+"""The training stages: material -> trained network -> hold-out metrics, one MLflow run each
+(with the network logged and registered as an MLflow model: `pipeline.mlflow_models`).
 
 Everything that can fail on bad input (material shape, scaler mismatch, tracking store)
 is checked before training starts, and the model file, metrics and pictures are written
@@ -16,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline import experiment_tracking, figures, io, materials, model_eval
+from pipeline import experiment_tracking, figures, io, materials, mlflow_models, model_eval
 from pipeline.model_store import LoadedModel, save_model
 from pipeline.networks import NetworkConfig
 from pipeline.params import Params
@@ -129,7 +130,8 @@ def _flat_params(kind: str, params: Params) -> dict:
 
 
 def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
-    """Stage `train_<kind>`: train one network, evaluate it on the hold-out, log one MLflow run."""
+    """Stage `train_<kind>`: train one network, evaluate it on the hold-out, log one MLflow run
+    with the training windows as its input and the network as a logged, registered model."""
     from lightning.pytorch.loggers import MLFlowLogger
 
     material = windows_dir / f"{kind}.parquet"
@@ -140,14 +142,16 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
     scaler = window_scaler(kind, params, windows_dir / "scalers.json")
     config = network_config(kind, params)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment, f"train_{kind}")
-    logger = MLFlowLogger(experiment_name=params.training.experiment, run_name=f"train_{kind}", tracking_uri=uri,
-                          tags={**experiment_tracking.run_tags(f"train_{kind}"),
-                                "input_data_sha256": experiment_tracking.data_hash(material),
-                                "mlflow.source.name": "python -m pipeline train"})
-    log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), logger.run_id, uri)
-    try:
+    experiment = params.training.experiment
+    experiment_tracking.check_tracking_store(uri, experiment, f"train_{kind}")
+    with experiment_tracking.stage_run(uri, params, f"train_{kind}", "train",
+                                       {"input_data_sha256": experiment_tracking.data_hash(material)}) as run:
+        # Lightning logs the losses into the stage's run; at the end of fit it marks the run
+        # FINISHED, and the stage's run ends it again (FAILED if anything after fit fails).
+        logger = MLFlowLogger(experiment_name=experiment, tracking_uri=uri, run_id=run.info.run_id)
+        log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), run.info.run_id, uri)
         logger.log_hyperparams(_flat_params(kind, params))
+        mlflow_models.log_training_windows(kind, material, inputs, targets)
         module, history = train(config, inputs, targets, training_config(kind, params), logger)
         model = LoadedModel(module.network, config, scaler)
         metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
@@ -168,13 +172,9 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
         io.write_json(metrics, reports_dir / "models" / f"{kind}.json")
         logger.log_metrics({key: float(value) for key, value in metrics.items()})
         for artifact in (model_path, reports_dir / f"loss_{kind}.png", reports_dir / "models" / f"{kind}.json"):
-            logger.experiment.log_artifact(logger.run_id, str(artifact))
-    except BaseException:
-        # Ctrl-C, a failure in training or after it: Lightning may already have marked the run
-        # finished when fit ended, and a failed stage must not look like a success in MLflow.
-        logger.experiment.set_terminated(logger.run_id, "FAILED")
-        raise
-    logger.finalize("success")
+            logger.experiment.log_artifact(run.info.run_id, str(artifact))
+        mlflow_models.log_network(kind, module.network, inputs, experiment, model_path,
+                                  run.data.tags[experiment_tracking.SESSION_TAG])
     log.info("train %s: %s", kind, ", ".join(f"{k} {v:.4g}" for k, v in metrics.items()))
 
 

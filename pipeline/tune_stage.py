@@ -98,6 +98,8 @@ def tune_all(params: Params, material: tuning.Sequences) -> dict[str, tuple[Filt
 
 
 def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir: Path) -> None:
+    """Stage `tune_kalman`: the tuned filters and their report, in one MLflow run that spans the
+    tuning and ends FAILED if it fails."""
     import mlflow
 
     plots_path = simulated_dir / params.kalman.split / "plots.parquet"
@@ -109,18 +111,16 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
     log.info("tune_kalman: %d target plots of %s, %d scored, cost %s, %d worker processes", int(material.valid.sum()),
              plots_path, int(material.scored.sum()), params.kalman.cost, min(params.workers, len(KINDS)))
 
-    results = tune_all(params, material)
-    report = {"cost": params.kalman.cost, "split": params.kalman.split,
-              "filters": {kind: entry for kind, (_, entry) in results.items()}}
-    io.write_json({"cost": params.kalman.cost, "filters": {kind: s.to_dict() for kind, (s, _) in results.items()}},
-                  models_dir / "kalman_tuned.json")
-    io.write_json(report, reports_dir / "kalman_tuning.json")
-
-    mlflow.set_tracking_uri(uri)
-    mlflow.set_experiment(params.training.experiment)
-    with mlflow.start_run(run_name="tune_kalman", tags={**experiment_tracking.run_tags("tune_kalman"),
-                                                          "input_data_sha256": experiment_tracking.data_hash(plots_path)}):
+    with experiment_tracking.stage_run(uri, params, "tune_kalman", "tune-kalman",
+                                       {"input_data_sha256": experiment_tracking.data_hash(plots_path)}):
         mlflow.log_params({f"kalman.{key}": value for key, value in vars(params.kalman).items()})
+        results = tune_all(params, material)
+        report = {"cost": params.kalman.cost, "split": params.kalman.split,
+                  "filters": {kind: entry for kind, (_, entry) in results.items()}}
+        io.write_json({"cost": params.kalman.cost, "filters": {kind: s.to_dict() for kind, (s, _) in results.items()}},
+                      models_dir / "kalman_tuned.json")
+        io.write_json(report, reports_dir / "kalman_tuning.json")
+
         mlflow.log_metrics({f"{kind}.{name}": float(values[name]) for kind, values in report["filters"].items()
                             for name in ("cost_before", "cost_after")})
         mlflow.log_metrics({f"{kind}.{stage}.{name}": float(values[stage][name])

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.io import process_alive
 from tests.project import copy_repository, environment, tiny_params_tree, write_params
 
 INSTALL_HINT = "run `make system-deps` (as root, or with sudo)"
@@ -44,27 +45,80 @@ def dvc(repository: Path, *arguments: str, tracking_uri: str | None = None) -> s
     at it, as a team member would do; without, the variable is unset and the copy's params
     (`sqlite:///mlflow.db`) decide.
     """
-    env = environment()
-    env.pop("MLFLOW_TRACKING_URI", None)
-    if tracking_uri is not None:
-        env["MLFLOW_TRACKING_URI"] = tracking_uri
-    result = subprocess.run([sys.executable, "-m", "dvc", *arguments], cwd=repository, env=env,
-                            capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "dvc", *arguments], cwd=repository,
+                            env=_dvc_environment(tracking_uri), capture_output=True, text=True)
     assert result.returncode == 0, (f"dvc {' '.join(arguments)} failed:\n{result.stdout}\n"
                                     f"{result.stderr[-5000:]}")
     return result.stdout
 
 
-def repro_tiny_pipeline(destination: Path) -> Path:
-    """A fresh copy of the repository with tiny params, `dvc repro evaluate` run in it.
+SWEEP = "training.predictor.hidden=[16,16],[64,64]"  # the README's sweep (of train_predictor alone)
+QUEUE_TIMEOUT_S = 600
 
-    That runs every training stage and `evaluate`, each logging one MLflow run to the copy's
-    `mlflow.db`.
+
+def _dvc_environment(tracking_uri: str | None) -> dict[str, str]:
+    """The environment DVC runs in: MLFLOW_TRACKING_URI is `tracking_uri`, or unset."""
+    env = environment()
+    env.pop("MLFLOW_TRACKING_URI", None)
+    if tracking_uri is not None:
+        env["MLFLOW_TRACKING_URI"] = tracking_uri
+    return env
+
+
+def repro_tiny_pipeline(destination: Path) -> Path:
+    """A fresh copy of the repository with tiny params, `dvc repro evaluate` run in it, then the
+    README's sweep of the predictor's layers queued and run two at a time.
+
+    That runs every training stage, `tune_kalman` and `evaluate`, each logging one MLflow run to
+    the copy's `mlflow.db`, and two more `train_predictor` runs, one per DVC experiment of the
+    sweep: the Models page has a filter and an autoencoder version and three predictor versions.
     """
     copy_repository(destination)
     write_params(tiny_params_tree(), destination / "params.yaml")
     dvc(destination, "repro", "evaluate")
+    dvc(destination, "exp", "run", "--queue", "-S", SWEEP, "train_predictor")
+    run_queue(destination, workers=2)
     return destination
+
+
+def run_queue(repository: Path, workers: int) -> None:
+    """`dvc queue start -j <workers>`, and wait until every queued experiment has finished;
+    fails the test unless each succeeded.
+
+    The workers are DVC's daemons: their output goes to a file, not a pipe this process would
+    wait on for as long as they live. A worker can stay after it said it shut down on the empty
+    queue, so once `dvc queue stop` has asked them to, the ones still there are ended by the pid
+    DVC recorded for them."""
+    with (repository / ".dvc" / "tmp" / "queue-start.log").open("w") as output:
+        started = subprocess.run([sys.executable, "-m", "dvc", "queue", "start", "-j", str(workers)], cwd=repository,
+                                 env=_dvc_environment(None), stdout=output, stderr=subprocess.STDOUT)
+    assert started.returncode == 0, (repository / ".dvc" / "tmp" / "queue-start.log").read_text()
+    try:
+        deadline = time.monotonic() + QUEUE_TIMEOUT_S
+        while True:
+            status = dvc(repository, "queue", "status")
+            if "Queued" not in status and "Running" not in status:
+                break
+            if time.monotonic() > deadline:
+                pytest.fail(f"the DVC queue did not finish within {QUEUE_TIMEOUT_S} s:\n{status}")
+            time.sleep(2)
+    finally:
+        dvc(repository, "queue", "stop")
+        _end_queue_workers(repository)
+    if "Failed" in status:
+        pytest.fail(f"a queued experiment failed (`dvc queue logs <task>` in {repository} tells why):\n{status}")
+
+
+def _end_queue_workers(repository: Path, grace_s: float = 20.0) -> None:
+    """SIGTERM the queue workers of `repository` still alive `grace_s` after they were asked to stop."""
+    pids = [int(text) for path in (repository / ".dvc" / "tmp" / "exps" / "celery").glob("dvc-exp-worker-*.pid")
+            if (text := path.read_text().strip()).isdigit()]
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and any(process_alive(pid) for pid in pids):
+        time.sleep(0.5)
+    for pid in pids:
+        if process_alive(pid):
+            os.kill(pid, signal.SIGTERM)
 
 
 def _wait_until_answers(url: str, process: subprocess.Popen, log: Path, timeout_s: float) -> None:

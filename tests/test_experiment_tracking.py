@@ -14,8 +14,11 @@ from urllib.parse import urlparse
 import mlflow
 import pytest
 
-from pipeline.experiment_tracking import TrackingError, check_tracking_store, run_tags, tracking_uri
+from pipeline.experiment_tracking import (EXPERIMENT_KIND_TAG, MODEL_TRAINING, TrackingError, check_tracking_store,
+                                         run_tags, session, tracking_uri)
+from pipeline.params import parse_params
 from tests.project import environment
+from tests.servers import run_queue
 
 EXPERIMENT = "radar-nn-tracker"
 
@@ -106,11 +109,10 @@ with mlflow.start_run(run_name="log_run", tags=run_tags("log_run")):
 '''
 
 
-def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_store(tmp_path: Path) -> None:
-    """`dvc exp run --temp` (what `dvc queue start` does for each queued experiment) runs the
-    stage in .dvc/tmp/exps/ and deletes that copy: its run, params and artifact are in the
-    repository's mlflow.db and mlruns/ afterwards."""
-    repository = tmp_path / "repository"
+def _repository_with_a_logging_stage(folder: Path) -> tuple[Path, dict[str, str]]:
+    """A committed DVC repository whose one stage logs a run as the pipeline's stages do, and the
+    environment to run DVC in (no MLFLOW_TRACKING_URI: the stage's relative store decides)."""
+    repository = folder / "repository"
     repository.mkdir()
     (repository / "log_run.py").write_text(LOG_RUN)
     (repository / "params.yaml").write_text("learning_rate: 0.001\n")
@@ -121,18 +123,45 @@ def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_stor
            "GIT_COMMITTER_NAME": "test", "GIT_COMMITTER_EMAIL": "test@example.invalid"}
     env.pop("MLFLOW_TRACKING_URI", None)
     for command in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"],
-                    ["git", "add", "-A"], ["git", "commit", "-q", "-m", "a stage that logs a run"],
-                    [sys.executable, "-m", "dvc", "exp", "run", "--temp", "-S", "learning_rate=0.002"]):
-        result = subprocess.run(command, cwd=repository, env=env, capture_output=True, text=True)
-        assert result.returncode == 0, f"{' '.join(command)}:\n{result.stdout}\n{result.stderr[-3000:]}"
+                    ["git", "add", "-A"], ["git", "commit", "-q", "-m", "a stage that logs a run"]):
+        _run(command, repository, env)
+    return repository, env
 
+
+def _run(command: list[str], repository: Path, env: dict[str, str]) -> str:
+    result = subprocess.run(command, cwd=repository, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, f"{' '.join(command)}:\n{result.stdout}\n{result.stderr[-3000:]}"
+    return result.stdout
+
+
+def _repository_runs(repository: Path) -> list[mlflow.entities.Run]:
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
     experiment = client.get_experiment_by_name(EXPERIMENT)
     assert experiment is not None, "no run reached the repository's mlflow.db"
-    runs = client.search_runs([experiment.experiment_id])
+    return client.search_runs([experiment.experiment_id])
+
+
+def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_store(tmp_path: Path) -> None:
+    """`dvc exp run --temp` (what `dvc queue start` does for each queued experiment) runs the
+    stage in .dvc/tmp/exps/ and deletes that copy: its run, params and artifact are in the
+    repository's mlflow.db and mlruns/ afterwards."""
+    repository, env = _repository_with_a_logging_stage(tmp_path)
+    _run([sys.executable, "-m", "dvc", "exp", "run", "--temp", "-S", "learning_rate=0.002"], repository, env)
+    runs = _repository_runs(repository)
     assert [run.data.params["learning_rate"] for run in runs] == ["0.002"]
     artifacts = _local_path(runs[0].info.artifact_uri)
     assert artifacts.is_relative_to(repository / "mlruns") and (artifacts / "params.yaml").is_file()
+
+
+def test_two_queued_experiments_run_two_at_a_time_both_log_to_the_repositorys_store(tmp_path: Path) -> None:
+    """The README's sweep: `dvc exp run --queue -S 'learning_rate=0.002,0.003'` queues two
+    experiments, `dvc queue start -j 2` runs them in two workers at once, each in its own
+    temporary copy, on a store neither has created yet: both runs are in the repository's store,
+    each with its params."""
+    repository, env = _repository_with_a_logging_stage(tmp_path)
+    _run([sys.executable, "-m", "dvc", "exp", "run", "--queue", "-S", "learning_rate=0.002,0.003"], repository, env)
+    run_queue(repository, workers=2)
+    assert sorted(run.data.params["learning_rate"] for run in _repository_runs(repository)) == ["0.002", "0.003"]
 
 
 def _local_path(artifact_uri: str) -> Path:
@@ -187,3 +216,54 @@ def test_a_copied_store_is_refused_naming_both_folders_before_writing_into_the_o
     assert f"move {copy / 'mlflow.db'} aside" in message
     assert sorted(path for path in (original / "mlruns").rglob("*")) == before
     _log_run_with_artifact(f"sqlite:///{original / 'mlflow.db'}", model)
+
+
+def test_the_experiment_is_marked_as_model_training_so_the_ui_opens_on_its_runs(tmp_path: Path) -> None:
+    """MLflow 3's UI opens an experiment without a kind on its GenAI overview. A new experiment is
+    created marked `custom_model_development`; one made before (no kind, or a kind the UI only
+    inferred) is marked when a stage next starts; a kind a user chose is kept."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    check_tracking_store(uri, EXPERIMENT, "train_filter")
+    assert client.get_experiment_by_name(EXPERIMENT).tags[EXPERIMENT_KIND_TAG] == MODEL_TRAINING
+    for kind, kept in ((None, MODEL_TRAINING), ("genai_development_inferred", MODEL_TRAINING),
+                       ("finetuning", "finetuning")):
+        name = f"older-{kind}"
+        older = client.create_experiment(name, artifact_location=str(tmp_path / "mlruns" / name))
+        if kind is not None:
+            client.set_experiment_tag(older, EXPERIMENT_KIND_TAG, kind)
+        check_tracking_store(uri, name, "train_filter")
+        assert client.get_experiment(older).tags[EXPERIMENT_KIND_TAG] == kept, kind
+
+
+def test_stages_of_one_experiment_share_its_name_as_session_and_a_repro_its_code_and_params(
+        params_tree, monkeypatch) -> None:
+    """`pipeline.session`: DVC's experiment name inside `dvc exp run`; otherwise the same for the
+    same code and params, and another for other params."""
+    params = parse_params(params_tree)
+    monkeypatch.setenv("DVC_EXP_NAME", "wider-predictor")
+    assert session(params) == "wider-predictor"
+    monkeypatch.delenv("DVC_EXP_NAME")
+    repro = session(params)
+    assert repro.startswith("repro-") and repro == session(parse_params(params_tree))
+    params_tree["training"]["predictor"]["hidden"] = [64, 64]
+    assert session(parse_params(params_tree)) != repro
+
+
+def test_two_stages_started_at_once_on_a_fresh_store_both_log_their_run(tmp_path: Path) -> None:
+    """Two stages of parallel experiments start together on a store that does not exist yet: both
+    create it and the experiment without failing (MLflow's first-use migration is not safe for two
+    processes at once), and both runs are there with their params."""
+    repository = tmp_path / "repository"
+    repository.mkdir()
+    (repository / "log_run.py").write_text(LOG_RUN)
+    (repository / "params.yaml").write_text("learning_rate: 0.001\n")
+    env = {**environment(), "DVC_ROOT": str(repository)}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    stages = [subprocess.Popen([sys.executable, "log_run.py"], cwd=repository, env=env, stderr=subprocess.PIPE,
+                               text=True) for _ in range(2)]
+    errors = [stage.communicate()[1] for stage in stages]
+    assert [stage.returncode for stage in stages] == [0, 0], "\n".join(error[-2000:] for error in errors)
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
+    runs = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
+    assert len(runs) == 2 and all(run.data.params["learning_rate"] == "0.001" for run in runs)

@@ -22,6 +22,8 @@ import pytest
 import torch
 
 from pipeline import cli, io, model_eval, train_stage
+from pipeline.experiment_tracking import SESSION_TAG, data_hash
+from pipeline.mlflow_models import DATASET_DIGEST_CHARS, FILE_DIGEST_TAG, registered_name, versions_used
 from pipeline.model_store import load_model, save_model
 from pipeline.networks import KINDS, NetworkConfig, build_network
 from pipeline.scaling import plot_scaler
@@ -332,6 +334,90 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
     assert Path(png).read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
 
 
+@pytest.fixture
+def registry(trained, monkeypatch) -> mlflow.MlflowClient:
+    """The trained store as the default of MLflow's functions that take a `models:/` URI."""
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", trained.tracking_uri)
+    return trained
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_train_command_logs_its_windows_and_registers_its_network(chain, registry, kind):
+    """The run's input is the training windows (named, with the windows file's digest); its
+    network is a logged PyTorch model with a signature and an input example, registered as a
+    new version of `radar-nn-tracker-<kind>`, tagged with the bundle's digest and the session."""
+    trained = registry
+    run = only_run(trained, kind)
+    [dataset] = run.inputs.dataset_inputs
+    assert dataset.dataset.name == f"{kind} windows"
+    assert dataset.dataset.digest == data_hash(chain / "windows" / f"{kind}.parquet")[:DATASET_DIGEST_CHARS]
+    assert {tag.key: tag.value for tag in dataset.tags}["mlflow.data.context"] == "training"
+
+    name = registered_name(EXPERIMENT, kind)
+    [version] = trained.search_model_versions(f"name = '{name}'")
+    assert version.run_id == run.info.run_id and str(version.version) == "1"
+    assert version.tags[FILE_DIGEST_TAG] == data_hash(chain / "models" / f"{kind}.pt")
+    assert version.tags[SESSION_TAG] == run.data.tags[SESSION_TAG]
+    assert trained.get_registered_model(name).description
+    info = mlflow.models.get_model_info(f"models:/{name}/1")
+    assert "pytorch" in info.flavors and info.signature is not None and info.saved_input_example_info is not None
+    steps = CONFIGS[kind].input_steps
+    assert info.signature.inputs.to_dict()[0]["tensor-spec"]["shape"] == (-1, steps, CONFIGS[kind].input_features)
+
+
+def test_every_run_of_the_same_code_and_params_shares_one_session(trained):
+    """The three training runs of one params file (no DVC experiment) carry the same session."""
+    sessions = {only_run(trained, kind).data.tags[SESSION_TAG] for kind in KINDS}
+    assert len(sessions) == 1 and sessions.pop().startswith("repro-")
+
+
+PREDICT_THROUGH_PYFUNC = """\
+import sys
+
+import numpy as np
+
+sys.modules["pipeline"] = None  # the MLflow model must load without this repository's code
+import mlflow
+
+for name in sys.argv[1:]:  # <kind>_<batch>: predict <name>.npy with the kind's version 1 into <name>_pyfunc.npy
+    model = mlflow.pyfunc.load_model(f"models:/radar-nn-tracker-{name.split('_')[0]}/1")
+    np.save(f"{name}_pyfunc.npy", model.predict(np.load(f"{name}.npy")))
+"""
+
+
+def test_a_logged_model_loaded_through_pyfunc_predicts_like_the_projects_loader(chain, registry, tmp_path):
+    """`mlflow.pyfunc.load_model` on each registered version, in a Python process that cannot
+    import `pipeline`, gives the outputs of `pipeline.model_store.load_model` on the bundle the
+    same run wrote (to float32 rounding), for windows it never saw, one window or several."""
+    rng = np.random.default_rng(3)
+    windows = {f"{kind}_{size}": rng.normal(size=(size, config.input_steps, config.input_features)).astype(np.float32)
+               for kind, config in CONFIGS.items() for size in (1, 7)}
+    for name, batch in windows.items():
+        np.save(tmp_path / f"{name}.npy", batch)
+    result = subprocess.run([sys.executable, "-c", PREDICT_THROUGH_PYFUNC, *windows], cwd=tmp_path, capture_output=True,
+                            text=True, env={**environment(), "MLFLOW_TRACKING_URI": registry.tracking_uri})
+    assert result.returncode == 0, result.stderr[-3000:]
+    for name, batch in windows.items():
+        kind = name.split("_")[0]
+        expected = load_model(chain / "models" / f"{kind}.pt", expected_kind=kind).predict(torch.from_numpy(batch))
+        # To float32 rounding: the exported graph and the eager GRU may add in another order, and
+        # the two processes may run torch with different numbers of threads.
+        np.testing.assert_allclose(np.load(tmp_path / f"{name}_pyfunc.npy"), expected.numpy(), rtol=1e-5, atol=1e-6,
+                                   err_msg=name)
+
+
+def test_the_evaluate_stage_finds_the_registered_versions_of_the_bundles_it_uses(chain, trained, tmp_path):
+    """Each bundle in models/ is found as the version its training run registered; a bundle no
+    run registered (trained elsewhere) is found as none."""
+    found = versions_used(trained, EXPERIMENT, chain / "models")
+    assert {kind: (str(version.version), version.run_id) for kind, version in found.items()} == {
+        kind: ("1", only_run(trained, kind).info.run_id) for kind in KINDS}
+    shutil.copytree(chain / "models", tmp_path / "models")
+    model = load_model(tmp_path / "models" / "filter.pt")
+    save_model(tmp_path / "models" / "filter.pt", model.network, model.config, model.scaler, {"retrained": True})
+    assert versions_used(trained, EXPERIMENT, tmp_path / "models")["filter"] is None
+
+
 def test_train_command_prints_each_lightning_line_once_and_no_advertising(chain, tmp_path):
     """Lightning's own lines come once, in the pipeline's log format (its package handler used to
     print each a second time), and its tips for paid services are not printed."""
@@ -450,4 +536,22 @@ def test_missing_holdout_is_found_before_training(chain, trained, tmp_path, capl
     code, log = train_command(caplog, chain / "params.yaml", "filter", tmp_path / "windows", tmp_path)
     assert code == 2
     assert "holdout.parquet: file not found" in log
+    assert not (tmp_path / "models").exists()
+
+
+def test_a_stage_that_fails_after_its_run_opened_ends_the_run_failed(chain, tmp_path, caplog, local_store,
+                                                                    monkeypatch):
+    """Training fails (here: an error of the training loop): the run, opened before training so
+    that its duration is the stage's, ends FAILED, not RUNNING or FINISHED; no model is written."""
+
+    def fail_in_training(*arguments, **keywords):
+        raise RuntimeError("the training loop failed")
+
+    monkeypatch.setattr(train_stage, "train", fail_in_training)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RuntimeError, match="the training loop failed"):
+        train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{local_store}")
+    [run] = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
+    assert run.info.run_name == "train_predictor" and run.info.status == "FAILED"
     assert not (tmp_path / "models").exists()
