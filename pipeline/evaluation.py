@@ -207,7 +207,7 @@ def target_gospa(scenario: Scenario, estimates: ospa.ScanEstimates, scans: np.nd
     present = scans[np.isin(scans, scenario.coverage_scans)]
     return gospa.scan_gospa(scans, present, np.zeros(len(present), dtype=np.int64), estimates.scan, estimates.track,
                             lambda truths, tracks: np.broadcast_to(errors[tracks], (len(truths), len(tracks))),
-                            cutoff, order)
+                            cutoff, order, keep_pairs=True)  # switches counted as for the scenes
 
 
 def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
