@@ -83,6 +83,7 @@ def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path,
              batch.times.shape[1], int(batch.scored.sum()), logger.run_id, uri)
     try:
         logger.log_hyperparams({f"kalman_net.{key}": value for key, value in asdict(k).items()})
+        torch.manual_seed(k.seed)  # the initial weights: the same for a seed, whatever ran before in the process
         network = KalmanNet(network_config(params))
         common = dict(batch_segments=k.batch_segments, truncation_steps=k.truncation_steps, seed=k.seed,
                       deterministic=params.training.deterministic)

@@ -359,7 +359,7 @@ def test_train_command_logs_its_windows_and_registers_its_network(chain, registr
     assert version.tags[FILE_DIGEST_TAG] == data_hash(chain / "models" / f"{kind}.pt")
     assert version.tags[SESSION_TAG] == run.data.tags[SESSION_TAG]
     assert trained.get_registered_model(name).description
-    info = mlflow.models.get_model_info(f"models:/{name}/1")
+    info = mlflow.models.get_model_info(trained.get_model_version_download_uri(name, "1"))
     assert "pytorch" in info.flavors and info.signature is not None and info.saved_input_example_info is not None
     steps = CONFIGS[kind].input_steps
     assert info.signature.inputs.to_dict()[0]["tensor-spec"]["shape"] == (-1, steps, CONFIGS[kind].input_features)
