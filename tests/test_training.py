@@ -14,6 +14,7 @@ import json
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import mlflow
@@ -335,10 +336,15 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
 
 
 @pytest.fixture
-def registry(trained, monkeypatch) -> mlflow.MlflowClient:
-    """The trained store as the default of MLflow's functions that take a `models:/` URI."""
+def registry(trained, monkeypatch) -> Iterator[mlflow.MlflowClient]:
+    """The trained store as the default of MLflow's functions that take a `models:/` URI, for this
+    test only: the environment (subprocesses) and the process-wide URI, which an earlier test in
+    the same worker may have set (a stage calls `mlflow.set_tracking_uri`)."""
     monkeypatch.setenv("MLFLOW_TRACKING_URI", trained.tracking_uri)
-    return trained
+    previous = mlflow.get_tracking_uri()
+    mlflow.set_tracking_uri(trained.tracking_uri)
+    yield trained
+    mlflow.set_tracking_uri(previous)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -359,7 +365,7 @@ def test_train_command_logs_its_windows_and_registers_its_network(chain, registr
     assert version.tags[FILE_DIGEST_TAG] == data_hash(chain / "models" / f"{kind}.pt")
     assert version.tags[SESSION_TAG] == run.data.tags[SESSION_TAG]
     assert trained.get_registered_model(name).description
-    info = mlflow.models.get_model_info(trained.get_model_version_download_uri(name, "1"))
+    info = mlflow.models.get_model_info(f"models:/{name}/1")
     assert "pytorch" in info.flavors and info.signature is not None and info.saved_input_example_info is not None
     steps = CONFIGS[kind].input_steps
     assert info.signature.inputs.to_dict()[0]["tensor-spec"]["shape"] == (-1, steps, CONFIGS[kind].input_features)
