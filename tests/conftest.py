@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 import fcntl
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import pytest
 
@@ -67,3 +67,15 @@ def tiny_pipeline(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> P
                 failed.touch()
                 raise
     return repository
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread() -> Iterator[None]:
+    """Batches of a few tracks: torch's intra-op threads only add contention (as in
+    pipeline.tracker.models); a module asks for it with `pytestmark = pytest.mark.usefixtures(...)`."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -24,12 +24,7 @@ from tests.test_classical import plots_table, radar_plots, random_flight, realis
 from tests.test_torch_filters import tensors
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

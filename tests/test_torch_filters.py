@@ -20,13 +20,7 @@ from tests.test_classical import plots_table, radar_plots, random_flight, realis
 NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Batches of a few tracks: torch's intra-op threads only add contention (as in pipeline.tracker.models)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
