@@ -65,6 +65,11 @@ def _train_kalman_net(args: argparse.Namespace) -> None:
                          Path(args.reports))
 
 
+def _train_association(args: argparse.Namespace) -> None:
+    from pipeline.association_stage import run_train_association
+    run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
+
+
 def _compare(args: argparse.Namespace) -> None:
     from pipeline.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
@@ -148,6 +153,11 @@ COMMANDS = {
                          "python -m pipeline train-kalman-net --simulated data/simulated --windows data/windows "
                          "--models models --reports reports",
                          ["params", "simulated", "windows", "models", "reports"]),
+    "train-association": (_train_association, "Train the seed's track-to-track association network on freshly "
+                          "simulated two-radar scenes and score it with the statistical, double-threshold and "
+                          "bias-robust methods against the bias (Lightning, one MLflow run).",
+                          "python -m pipeline train-association --models models --reports reports",
+                          ["params", "models", "reports"]),
     "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
                 "against the tuned Kalman filters on the hold-out.",
                 "python -m pipeline compare --windows data/windows --models models --reports reports",

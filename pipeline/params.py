@@ -320,6 +320,8 @@ class Kalman:
 KALMAN_NET_BASES = ("cv", "ca", "singer")   # base filters the network can scale (one motion model each)
 KALMAN_NET_CELLS = ("gru", "mlp")
 GRADIENT_KINDS = ("cv", "ca", "singer", "imm")  # filters tuned by gradient descent
+TRACK_MODELS = ("kalman", "two_point")          # association.tracks: how the synthetic radars make track points
+MIN_SCENE_SIZE = 10                             # association.scene_size: the network's convolutions need this much
 
 
 @dataclass(frozen=True)
@@ -356,6 +358,40 @@ class KalmanNet:
 
 
 @dataclass(frozen=True)
+class Association:
+    """Two radars' track-to-track association on the seed's synthetic setting (params.yaml `association`)."""
+
+    targets: tuple[int, int]
+    area_m: float
+    scan_period_s: float
+    track_points: int
+    noise_m: tuple[float, float]
+    detection_probability: float
+    speed_mps: tuple[float, float]
+    acceleration_std_mps2: float
+    tracks: str
+    train_bias_m: tuple[float, float]
+    eval_bias_m: tuple[float, ...]
+    eval_scenes: int
+    eval_seed: int
+    gate_probability: float
+    double_threshold_hits: int
+    max_bias_m: float
+    vote_radius_m: float
+    max_iterations: int
+    scene_size: int
+    scene_diameter_m: float
+    feature_hidden: tuple[int, ...]
+    decision_hidden: int
+    decision_threshold: float
+    epochs: int
+    scenes_per_epoch: int
+    scenes_per_batch: int
+    learning_rate: float
+    seed: int
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -368,6 +404,7 @@ class Params:
     tracker: TrackerParams
     kalman: Kalman
     kalman_net: KalmanNet
+    association: Association
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
 
@@ -1015,6 +1052,52 @@ def _kalman_net(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> KalmanNet
         noise_scales=tuple(float(v) for v in scales), noise_seed=_integer(tree, "noise_seed", p))
 
 
+def _association(tree: Mapping[str, Any]) -> Association:
+    """Checked before anything trains: the target count fits the scene tensor, the double threshold fits the
+    track history, the scene tensor is large enough for the network's convolutions."""
+    p = "association"
+    low, high = _interval(tree, "targets", p, 1)
+    if low != int(low) or high != int(high):
+        raise ParamError(f"{p}.targets = {[low, high]}: must be whole numbers")
+    size = _integer(tree, "scene_size", p, MIN_SCENE_SIZE)
+    if high > size:
+        raise ParamError(f"{p}.targets = {[int(low), int(high)]}: more targets than scene_size = {size} tracks")
+    track_points = _integer(tree, "track_points", p, 2)
+    hits = _integer(tree, "double_threshold_hits", p, 1)
+    if hits > track_points - 1:
+        raise ParamError(f"{p}.double_threshold_hits = {hits}: above the track history of track_points - 1 = "
+                         f"{track_points - 1} times")
+    tracks = _text(tree, "tracks", p)
+    if tracks not in TRACK_MODELS:
+        raise ParamError(f"{p}.tracks = {tracks!r}: must be one of {TRACK_MODELS}")
+    noise = _get(tree, "noise_m", p)
+    if (not isinstance(noise, list) or len(noise) != 2 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in noise)):
+        raise ParamError(f"{p}.noise_m = {noise!r}: must be two positive numbers (radar 1's and radar 2's sigma)")
+    biases = _get(tree, "eval_bias_m", p)
+    if (not isinstance(biases, list) or not biases or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf for v in biases)):
+        raise ParamError(f"{p}.eval_bias_m = {biases!r}: must list non-negative numbers")
+    return Association(
+        targets=(int(low), int(high)), area_m=_positive(tree, "area_m", p),
+        scan_period_s=_positive(tree, "scan_period_s", p), track_points=track_points,
+        noise_m=(float(noise[0]), float(noise[1])),
+        detection_probability=_number(tree, "detection_probability", p, 0.0, 1.0, low_open=True),
+        speed_mps=_positive_interval(tree, "speed_mps", p),
+        acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), tracks=tracks,
+        train_bias_m=_interval(tree, "train_bias_m", p), eval_bias_m=tuple(float(v) for v in biases),
+        eval_scenes=_integer(tree, "eval_scenes", p, 1), eval_seed=_integer(tree, "eval_seed", p),
+        gate_probability=_number(tree, "gate_probability", p, 0.0, 1.0, low_open=True, high_open=True),
+        double_threshold_hits=hits, max_bias_m=_positive(tree, "max_bias_m", p),
+        vote_radius_m=_positive(tree, "vote_radius_m", p), max_iterations=_integer(tree, "max_iterations", p, 1),
+        scene_size=size, scene_diameter_m=_positive(tree, "scene_diameter_m", p),
+        feature_hidden=_sizes(tree, "feature_hidden", p), decision_hidden=_integer(tree, "decision_hidden", p, 1),
+        decision_threshold=_number(tree, "decision_threshold", p, 0.0, 1.0, low_open=True, high_open=True),
+        epochs=_integer(tree, "epochs", p, 1), scenes_per_epoch=_integer(tree, "scenes_per_epoch", p, 1),
+        scenes_per_batch=_integer(tree, "scenes_per_batch", p, 1), learning_rate=_positive(tree, "learning_rate", p),
+        seed=_integer(tree, "seed", p))
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -1041,6 +1124,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         tracker=_tracker(_get(tree, "tracker", "params"), windows, radar),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
+        association=_association(_get(tree, "association", "params")),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )
