@@ -22,7 +22,6 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from io import BytesIO
 from pathlib import Path
 
 import lightning as L
@@ -31,7 +30,7 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import DataLoader
 
-from pipeline import io, training  # noqa: F401  (training: Lightning's logging set up as for the other networks)
+from pipeline import model_store, training  # noqa: F401  (training: Lightning's logging set up as elsewhere)
 from pipeline.scene_tensor import pair_features, scene_tensor
 
 log = logging.getLogger("pipeline")
@@ -209,14 +208,13 @@ def train(model: AssociationNet, make_epoch: Callable[[int], list[SceneInputs]],
 
 def save(model: AssociationNet, path: Path, extras: dict | None = None) -> None:
     """The config and weights in one torch file (written whole or not at all)."""
-    buffer = BytesIO()
-    torch.save({"config": asdict(model.config), "state_dict": model.state_dict(), "extras": extras or {}}, buffer)
-    io.write_bytes(buffer.getvalue(), path)
+    model_store.write_bundle({"config": asdict(model.config), "state_dict": model.state_dict(),
+                              "extras": extras or {}}, path)
 
 
 def load(path: Path) -> AssociationNet:
-    """A saved association network, ready to decide (eval mode)."""
-    stored = torch.load(path, weights_only=True)
+    """A saved association network, ready to decide (eval mode); InputError naming a missing or unreadable file."""
+    stored = model_store.read_bundle(path)
     config = stored["config"]
     model = AssociationNet(AssociationNetConfig(**{**config, "feature_hidden": tuple(config["feature_hidden"])}))
     model.load_state_dict(stored["state_dict"])

@@ -79,7 +79,8 @@ def _process_noise(period_s: float, acceleration_std_mps2: float) -> np.ndarray:
     return q
 
 
-def _two_point(previous: np.ndarray, last: np.ndarray, period_s: float, sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _two_point(previous: np.ndarray, last: np.ndarray, period_s: float,
+               sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
     """State (N, 4) and covariance (4, 4) from two plots (N, 2) one period apart (Bar-Shalom et al. 2001,
     section 5.5.3): position the last plot, velocity their difference over the period."""
     r = sigma_m ** 2

@@ -44,7 +44,8 @@ def run_train_association(params: Params, models_dir: Path, reports_dir: Path) -
         io.write_bytes(association_report.bias_figure(report), reports_dir / "association_bias.png")
         seed_setting = report["seed_setting"]["methods"]
         logger.log_metrics({"association.train_seconds": seconds,
-                            **{f"association.seed_setting.{m}.accuracy": v["accuracy"] for m, v in seed_setting.items()},
+                            **{f"association.seed_setting.{m}.accuracy": v["accuracy"]
+                               for m, v in seed_setting.items()},
                             **{f"association.bias_{b}.{m}.accuracy": v["accuracy"]
                                for b, row in report["by_bias_m"].items() for m, v in row["methods"].items()}})
         for path in (models_dir / "association_net.pt", reports_dir / "association.json",

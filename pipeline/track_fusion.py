@@ -57,7 +57,8 @@ def fuse_pairs(states1: np.ndarray, covariances1: np.ndarray, states2: np.ndarra
         states2 = states2.copy()
         states2[:, :len(bias_m)] -= bias_m
     d = states1.shape[1]
-    fused_states, fused_covariances, weights = np.zeros((len(pairs), d)), np.zeros((len(pairs), d, d)), np.zeros(len(pairs))
+    fused_states, fused_covariances = np.zeros((len(pairs), d)), np.zeros((len(pairs), d, d))
+    weights = np.zeros(len(pairs))
     for k, (i, j) in enumerate(pairs):
         fused_states[k], fused_covariances[k], weights[k] = intersect(states1[i], covariances1[i], states2[j],
                                                                       covariances2[j], criterion)
