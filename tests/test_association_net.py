@@ -23,8 +23,7 @@ def test_decision_is_row_maximum_above_threshold_then_one_to_one():
     assert decide(np.zeros((0, 2)), 0.5).tolist() == []
 
 
-@pytest.fixture(scope="module")
-def trained(one_torch_thread) -> AssociationNet:
+def train_tiny() -> AssociationNet:
     """A few seconds of training on the seed's setting (4 epochs of 60 scenes)."""
     torch.manual_seed(0)
     model = AssociationNet(CONFIG)
@@ -34,6 +33,17 @@ def trained(one_torch_thread) -> AssociationNet:
 
     association_net.train(model, make_epoch, TrainConfig(4, 60, 4, 0.01, 0, True))
     return model
+
+
+@pytest.fixture(scope="module")
+def trained(one_torch_thread) -> AssociationNet:
+    return train_tiny()
+
+
+def test_training_twice_gives_the_same_weights(trained):
+    again = train_tiny().state_dict()
+    for name, weights in trained.state_dict().items():
+        torch.testing.assert_close(again[name], weights, rtol=0, atol=0)
 
 
 def test_trained_network_pairs_a_straight_aircraft_seen_without_bias(trained):
