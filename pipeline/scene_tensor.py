@@ -10,6 +10,8 @@ Pair features (section 2.2 (2)): for radar 1's track i and radar 2's track j, th
 position, speed and heading: squared differences over the summed variances, the variances of speed
 and heading linearised from the velocity covariance (their Jacobians; Bar-Shalom, Li & Kirubarajan (2001),
 section 1.4.15). The heading difference is wrapped to [-π, π]. (n, m, 3) in [position, speed, heading] order.
+The seed computes them over the two track segments (its formula was lost in the scraped text); here at the
+common time, whose filtered state and covariance summarise the segment.
 """
 
 from __future__ import annotations
