@@ -15,11 +15,10 @@ from dataclasses import asdict
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.compute as pc
 
-from pipeline import experiment_tracking, io, kalman_net, materials, simulate, tuning
+from pipeline import experiment_tracking, io, kalman_net, materials, simulate
 from pipeline.classical_filters import FilterSettings
-from pipeline.filter_training import DescentConfig, descend
+from pipeline.filter_training import DescentConfig, descend, training_segments
 from pipeline.gradient_tuning import TunedFilter
 from pipeline.kalman_net import KalmanNet, KalmanNetConfig
 from pipeline.params import Params
@@ -48,19 +47,11 @@ def baseline_start(kind: str, params: Params) -> FilterSpec:
 
 def training_material(params: Params, plots: pa.Table, holdout: pa.Table) -> SequenceBatch:
     """Training segments (B, segment_plots) of the split's target plots, hold-out plots left out
-    (they are the windows stage's train split's: only that split has them). InputError when the
-    longest segment is shorter than the truncation."""
+    (they are the windows stage's train split's: only that split has them)."""
     k = params.kalman_net
-    if k.split == params.routes.split("train").name:
-        plots = plots.filter(pc.invert(pc.is_in(plots.column("plot_id"), holdout.column("plot_id"))))
-    material = tuning.target_sequences(plots, params.radar, k.restart_gap_s, k.burn_in_updates,
-                                       params.tracker.kalman_gate_probability, params.tracker.young_track_plots,
-                                       segment_plots=k.segment_plots)
-    longest = material.times.shape[1]
-    if longest < k.truncation_steps:
-        raise io.InputError(f"{k.split}: the longest training segment has {longest} plots, fewer than "
-                            f"kalman_net.truncation_steps = {k.truncation_steps}")
-    return SequenceBatch.from_sequences(material)
+    return training_segments(plots, holdout if k.split == params.routes.split("train").name else None,
+                             params.radar, k.restart_gap_s, k.burn_in_updates, params.tracker.kalman_gate_probability,
+                             params.tracker.young_track_plots, k.segment_plots, k.truncation_steps, "kalman_net")
 
 
 def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
