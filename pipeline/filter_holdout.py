@@ -86,7 +86,8 @@ def detailed_scores(plots: windows.TargetPlots, length: int, batch: SequenceBatc
     return {**result, "turn_mean_error_m": float(distance[turning].mean()),
             "straight_mean_error_m": float(distance[~turning].mean()), "turn_windows": int(turning.sum()),
             "anees_bounds": [float(low), float(high)], "anees_inside": bool(low <= result["anees"] <= high),
-            "within_range_share": {f"{share:g}": float((distance <= share * true_range).mean()) for share in range_shares}}
+            "within_range_share": {f"{share:g}": float((distance <= share * true_range).mean())
+                                   for share in range_shares}}
 
 
 def compare(plots: windows.TargetPlots, radar: Radar, length: int, filters: dict[str, FilterRun],

@@ -56,22 +56,17 @@ def training_material(params: Params, plots: pa.Table, holdout: pa.Table) -> Seq
 
 def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
                          reports_dir: Path) -> None:
-    from lightning.pytorch.loggers import MLFlowLogger
     import torch
 
     k = params.kalman_net
     plots_path = simulated_dir / k.split / "plots.parquet"
     batch = training_material(params, io.read_parquet(plots_path, simulate.PLOT_SCHEMA),
                               io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA))
-    uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment, "train_kalman_net")
+    logger = experiment_tracking.lightning_logger(params, "train_kalman_net", "train-kalman-net", plots_path)
     torch.set_num_threads(params.training.threads)
-    logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="train_kalman_net", tracking_uri=uri,
-                          tags={**experiment_tracking.run_tags("train_kalman_net"),
-                                "input_data_sha256": experiment_tracking.data_hash(plots_path),
-                                "mlflow.source.name": "python -m pipeline train-kalman-net"})
     log.info("train_kalman_net: %d segments of up to %d plots (%d scored), MLflow run %s in %s", len(batch.times),
-             batch.times.shape[1], int(batch.scored.sum()), logger.run_id, uri)
+             batch.times.shape[1], int(batch.scored.sum()), logger.run_id,
+             experiment_tracking.tracking_uri(params.training.tracking_uri))
     try:
         logger.log_hyperparams({f"kalman_net.{key}": value for key, value in asdict(k).items()})
         torch.manual_seed(k.seed)  # the initial weights: the same for a seed, whatever ran before in the process

@@ -28,13 +28,19 @@ feature 1 and beta on feature 2, everything else zero.
 estimate from the graph before F; otherwise gradients flow through the whole recursion up to the
 truncation.
 
-Uncertainty (Gal and Ghahramani 2016, MC dropout): the dropout masks stay on, and N =
-`mc_samples` copies of each track run as one batch (B N rows), each with its own masks at every
-step and its own state and memory: an ensemble. The estimate is the ensemble mean, its covariance
-the ensemble's sample covariance of the position times a calibration factor, plus `floor_m`^2 I;
-the prediction's likewise (the gate's). The two factors are fitted after training on training
-material (`calibrate`): the estimate's so that its mean NEES is 3, the prediction's so that the
-mean NIS against S = c C + R is 3. With dropout 0 the copies coincide and the spread is zero.
+Uncertainty (Gal and Ghahramani 2016, MC dropout): each track runs as N = 1 + `mc_samples`
+copies in one batch (B N rows), each with its own state and memory: copy 0 without dropout, the
+point estimate (as trained: it starts still at the track's first plot), and `mc_samples` copies
+with their own dropout masks at every step, started with velocities spread by
+`start_velocity_std_mps` (antithetic, mean zero), so that the prediction at the second plot
+carries the unknown velocity as the Kalman filter's start covariance does. The covariance is the
+copies' second moment about the point estimate, sum_k (x_k - x_0)(x_k - x_0)' / `mc_samples`
+(spread and bias of the copies), times a calibration factor, plus `floor_m`^2 I; the
+prediction's likewise (the gate's). The two factors depend on the track's age a (plots since its
+start: the start spread fades with it) up to `calibration_ages`, older tracks taking the last;
+they are fitted after training on training material, age by age (`calibrate`): the estimate's so
+that its mean NEES is 3, the prediction's so that the mean NIS against S = c C + R is 3. With
+dropout 0 one copy runs and the covariance is the floor.
 
 Shapes: B tracks, N samples, T steps, H hidden units; float64 like `torch_filters`.
 """
@@ -71,6 +77,8 @@ class LSTMUpdateConfig:
     initial_alpha: float
     initial_beta: float
     floor_m: float
+    start_velocity_std_mps: float
+    calibration_ages: int
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.dropout < 1.0:
@@ -81,20 +89,22 @@ class LSTMUpdateConfig:
 
 @dataclass(frozen=True)
 class Ensemble:
-    """N copies of B tracks: states x (B, N, 9) ECEF [p, v, a] per axis, LSTM memory h and c (B, N, H)."""
+    """N copies of B tracks: states x (B, N, 9) ECEF [p, v, a] per axis, LSTM memory h and c (B, N, H),
+    and each track's age (B,) (plots since its start, that one included)."""
 
     x: Tensor
     h: Tensor
     c: Tensor
+    age: Tensor
 
     def detached(self) -> Ensemble:
-        return Ensemble(self.x.detach(), self.h.detach(), self.c.detach())
+        return Ensemble(self.x.detach(), self.h.detach(), self.c.detach(), self.age)
 
     def where(self, rows: Tensor, other: Ensemble) -> Ensemble:
         """Per track (rows (B,) bool): this ensemble where true, `other` elsewhere."""
         keep = rows[:, None, None]
         return Ensemble(torch.where(keep, self.x, other.x), torch.where(keep, self.h, other.h),
-                        torch.where(keep, self.c, other.c))
+                        torch.where(keep, self.c, other.c), torch.where(rows, self.age, other.age))
 
 
 def transition(dt: Tensor) -> Tensor:
@@ -115,10 +125,11 @@ def level_frames(position: Tensor, velocity: Tensor) -> Tensor:
 
 
 def spread(samples: Tensor) -> tuple[Tensor, Tensor]:
-    """Mean (B, k) and sample covariance (B, k, k) over the N samples of (B, N, k); zero for N = 1."""
-    mean = samples.mean(1)
-    offset = samples - mean[:, None]
-    return mean, offset.transpose(1, 2) @ offset / max(samples.shape[1] - 1, 1)
+    """The point estimate (B, k), copy 0 of (B, N, k), and the other copies' second moment about it
+    (B, k, k) (module docstring); zero for N = 1."""
+    centre = samples[:, 0]
+    offset = samples[:, 1:] - centre[:, None]
+    return centre, offset.transpose(1, 2) @ offset / max(samples.shape[1] - 1, 1)
 
 
 class LSTMUpdate(nn.Module):
@@ -137,18 +148,29 @@ class LSTMUpdate(nn.Module):
                 self.output.weight[3 * axis + 1, 3 + axis] = config.initial_beta
         scales = (config.position_scale_m, config.velocity_scale_mps, config.acceleration_scale_mps2)
         self.register_buffer("output_scale", torch.tensor(scales * 3, dtype=dtype))
-        self.register_buffer("calibration", torch.ones(2, dtype=dtype))  # estimate's, prediction's
+        self.register_buffer("calibration", torch.ones(2, config.calibration_ages, dtype=dtype))  # estimate's,
+        # prediction's, by age 1 .. calibration_ages
 
     @property
     def dtype(self) -> torch.dtype:
         return self.output.weight.dtype
 
+    def start_velocities(self, samples: int) -> Tensor:
+        """The copies' start velocities (samples, 3) m/s: copy 0 still, the others antithetic pairs of
+        normal draws (a fixed generator: the same for every track and run) times
+        `start_velocity_std_mps`, an odd one out still, so their mean is zero."""
+        draws = torch.randn((samples - 1) // 2, 3, generator=torch.Generator().manual_seed(0), dtype=self.dtype)
+        still = torch.zeros(1 + (samples - 1) % 2, 3, dtype=self.dtype)
+        return torch.cat([still, draws, -draws]) * self.config.start_velocity_std_mps
+
     def started(self, z: Tensor, samples: int) -> Ensemble:
-        """`samples` copies of tracks started at plots z (B, 3): at the plot, still, memory empty."""
+        """`samples` copies of tracks started at plots z (B, 3): at the plot, velocities
+        `start_velocities` (the copies' prior, as an ensemble Kalman filter draws one), memory empty."""
         x = torch.zeros(len(z), samples, STATES, dtype=self.dtype)
         x[..., ::3] = z[:, None]
+        x[..., 1::3] = self.start_velocities(samples)
         memory = torch.zeros(len(z), samples, self.config.hidden, dtype=self.dtype)
-        return Ensemble(x, memory, memory)
+        return Ensemble(x, memory, memory, torch.ones(len(z), dtype=torch.long))
 
     def predicted(self, x: Tensor, dt: Tensor) -> Tensor:
         """x~ = F x (B, N, 9) over dt (B,) s, the previous estimate cut from the graph if
@@ -175,31 +197,36 @@ class LSTMUpdate(nn.Module):
              ) -> tuple[Ensemble, Tensor]:
         """One plot z (B, 3), covariance R (B, 3, 3), dt (B,) s after the ensemble's estimates:
         the new ensemble and the predictions x~ (B, N, 9). `sample`: dropout masks on (training,
-        MC dropout), off for the deterministic estimate."""
+        MC dropout; copy 0 of several has none), off for a deterministic estimate."""
         prior = self.predicted(ensemble.x, dt)
         f, frame = self.features(prior, z, R, dt)
         B, N, _ = f.shape
         h, c = self.cell(f.reshape(B * N, -1), (ensemble.h.reshape(B * N, -1), ensemble.c.reshape(B * N, -1)))
-        read = nn.functional.dropout(torch.cat([f.reshape(B * N, -1), h], 1), self.config.dropout, sample)
+        read = torch.cat([f.reshape(B * N, -1), h], 1)
+        dropped = nn.functional.dropout(read, self.config.dropout, sample)
+        if N > 1:  # copy 0: the point estimate
+            dropped = torch.cat([read.reshape(B, N, -1)[:, :1], dropped.reshape(B, N, -1)[:, 1:]], 1)
+        read = dropped.reshape(B * N, -1)
         correction = (self.output(read) * self.output_scale).reshape(B, N, 3, 3)  # [axis, p/v/a] in the frame
         correction = (frame.transpose(-1, -2) @ correction).reshape(B, N, STATES)
-        return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1)), prior
+        return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1), ensemble.age + 1), prior
 
-    def covariance(self, samples: Tensor, which: int) -> tuple[Tensor, Tensor]:
-        """Mean (B, 3) and calibrated covariance (B, 3, 3) of sample positions (B, N, 3); `which`:
-        0 the estimate's calibration, 1 the prediction's."""
-        mean, covariance = spread(samples)
+    def covariance(self, samples: Tensor, which: int, age: Tensor) -> tuple[Tensor, Tensor]:
+        """Point estimate (B, 3) and calibrated covariance (B, 3, 3) of the copies' positions (B, N, 3)
+        of tracks of `age` (B,); `which`: 0 the estimate's calibration, 1 the prediction's (age: the
+        track's before the plot predicted)."""
+        centre, covariance = spread(samples)
         floor = self.config.floor_m ** 2 * torch.eye(3, dtype=self.dtype)
-        return mean, self.calibration[which] * covariance + floor
+        factor = self.calibration[which, age.clamp(1, self.config.calibration_ages) - 1]
+        return centre, factor[:, None, None] * covariance + floor
 
     def ensemble(self) -> tuple[int, bool]:
         """How many copies of a track run and whether their dropout masks are on: in training one
-        copy with dropout (the loss); else the MC-dropout ensemble of `mc_samples` copies, or one
-        copy without dropout when dropout is 0 or `mc_samples` 1."""
+        copy with dropout (the loss); else the point estimate and `mc_samples` MC-dropout copies, or
+        the point estimate alone when dropout is 0."""
         if self.training:
             return 1, True
-        samples = 1 if self.config.dropout == 0 else self.config.mc_samples
-        return samples, samples > 1
+        return (1, False) if self.config.dropout == 0 else (1 + self.config.mc_samples, True)
 
     def forward(self, batch: SequenceBatch, detach_every: int | None = None) -> Filtered:
         """B sequences of T plots filtered (padding skipped, restarts started afresh) by the ensemble
@@ -207,38 +234,39 @@ class LSTMUpdate(nn.Module):
         samples, sample = self.ensemble()
         return run_sequences(self, batch, samples, sample, detach_every).filtered(self, batch)
 
-    def deterministic(self, batch: SequenceBatch) -> Filtered:
-        """The sequences with dropout off (one copy): the estimator's point estimates."""
-        return run_sequences(self, batch, 1, sample=False).filtered(self, batch)
-
 
 @dataclass(frozen=True)
 class Run:
     """An ensemble run over B sequences of T steps: estimates and predictions (B, T, N, 3) ECEF m
-    (NaN-free; padding repeats the state), and the last ensemble."""
+    (NaN-free; padding repeats the state), the tracks' ages (B, T) after and before each step, and
+    the last ensemble."""
 
     estimates: Tensor
     predictions: Tensor
+    ages: Tensor
+    prior_ages: Tensor
     last: Ensemble
 
     def filtered(self, model: LSTMUpdate, batch: SequenceBatch) -> Filtered:
         """As `torch_filters.Filtered`: positions and covariances (calibrated, `LSTMUpdate.covariance`),
-        innovations against the ensemble's mean prediction with S = its covariance + R, NaN where not
+        innovations against the point estimate's prediction with S = its covariance + R, NaN where not
         defined; one mode of probability 1."""
         B, T, N, _ = self.estimates.shape
-        position, covariance = model.covariance(self.estimates.reshape(B * T, N, 3), 0)
-        predicted, predicted_covariance = model.covariance(self.predictions.reshape(B * T, N, 3), 1)
+        position, covariance = model.covariance(self.estimates.reshape(B * T, N, 3), 0, self.ages.reshape(-1))
+        predicted, predicted_covariance = model.covariance(self.predictions.reshape(B * T, N, 3), 1,
+                                                           self.prior_ages.reshape(-1))
         innovation = batch.positions.reshape(B * T, 3) - predicted
         S = predicted_covariance + batch.covariances.reshape(B * T, 3, 3)
         distance = (innovation[:, None] @ torch_filters.inverse3(S)[0] @ innovation[:, :, None])[:, 0, 0]
         moving = batch.valid & ~batch.restart
         blank = torch_filters._blank
-        mean = self.last.x.mean(1)
-        return Filtered(blank(position.reshape(B, T, 3), batch.valid), blank(covariance.reshape(B, T, 3, 3), batch.valid),
+        point = self.last.x[:, 0]
+        return Filtered(blank(position.reshape(B, T, 3), batch.valid),
+                        blank(covariance.reshape(B, T, 3, 3), batch.valid),
                         blank(torch.ones(B, T, 1, dtype=model.dtype), batch.valid),
                         blank(innovation.reshape(B, T, 3), moving), blank(S.reshape(B, T, 3, 3), moving),
                         blank(distance.reshape(B, T), moving),
-                        State(mean[:, None], torch.zeros(B, 1, STATES, STATES, dtype=model.dtype),
+                        State(point[:, None], torch.zeros(B, 1, STATES, STATES, dtype=model.dtype),
                               torch.ones(B, 1, dtype=model.dtype)))
 
 
@@ -250,7 +278,7 @@ def run_sequences(model: LSTMUpdate, batch: SequenceBatch, samples: int, sample:
     positions, covariances = batch.positions.to(model.dtype), batch.covariances.to(model.dtype)
     dt = torch_filters.time_steps(batch.times, batch.valid, batch.restart)
     ensemble = model.started(positions[:, 0], samples)
-    estimates, predictions = [], []
+    estimates, predictions, ages, prior_ages = [], [], [], []
     for t in range(batch.times.shape[1]):
         if detach_every is not None and t and t % detach_every == 0:
             ensemble = ensemble.detached()
@@ -261,38 +289,48 @@ def run_sequences(model: LSTMUpdate, batch: SequenceBatch, samples: int, sample:
         after = model.started(z, samples).where(fresh, after.where(moving, ensemble))
         predictions.append(torch.where(moving[:, None, None], prior[..., ::3], after.x[..., ::3]))
         estimates.append(after.x[..., ::3])
+        prior_ages.append(ensemble.age)
+        ages.append(after.age)
         ensemble = after
-    return Run(torch.stack(estimates, 1), torch.stack(predictions, 1), ensemble)
+    return Run(torch.stack(estimates, 1), torch.stack(predictions, 1), torch.stack(ages, 1), torch.stack(prior_ages, 1),
+               ensemble)
 
 
-def calibrate(model: LSTMUpdate, batch: SequenceBatch) -> tuple[float, float]:
-    """Fit the two covariance factors on `batch`'s scored steps (module docstring): the estimate's
-    c = mean NEES of the uncalibrated ensemble covariance / 3 (NEES scales as 1 / c), the
-    prediction's the root of mean d' (c C + R)^-1 d = 3 (decreasing in c, scipy's brentq on
-    [1e-6, 1e6], clipped there). Sets and returns them. Without spread (dropout 0) both stay 1."""
-    if model.config.dropout == 0 or model.config.mc_samples < 2:
-        return 1.0, 1.0
+def calibrate(model: LSTMUpdate, batch: SequenceBatch) -> Tensor:
+    """Fit the covariance factors on `batch`'s updates, age by age up to `calibration_ages` (the last
+    takes every older update; module docstring): the estimate's c = mean NEES of the uncalibrated
+    covariance / 3 (NEES scales as 1 / c), the prediction's the root of mean d' (c C + R)^-1 d = 3
+    (decreasing in c, scipy's brentq on [1e-6, 1e6], clipped there); 1 for an age without updates
+    (a start's estimate). Sets and returns them (2, calibration_ages). Without copies (dropout 0) all 1."""
+    if model.config.dropout == 0:
+        return model.calibration
     with torch.no_grad():
         model.calibration.fill_(1.0)
-        run = run_sequences(model, batch, model.config.mc_samples, sample=True)
-        scored = batch.scored & ~batch.restart
-        estimates, predictions = run.estimates[scored], run.predictions[scored]
+        run = run_sequences(model, batch, *model.eval().ensemble())
+        moving = batch.valid & ~batch.restart
         floor = model.config.floor_m ** 2 * torch.eye(3, dtype=model.dtype)
-        mean, C = spread(estimates)
-        error = mean - batch.truth[scored]
-        nees = (error[:, None] @ torch.linalg.solve(C + floor, error[:, :, None]))[:, 0, 0]
-        estimate_factor = float(nees.mean() / 3)
-        mean, C = spread(predictions)
-        innovation, R = batch.positions[scored] - mean, batch.covariances[scored]
+        top = model.config.calibration_ages
+        for age in range(1, top + 1):
+            for which, (samples, ages) in enumerate(((run.estimates, run.ages), (run.predictions, run.prior_ages))):
+                rows = moving & ((ages == age) if age < top else (ages >= age))
+                if rows.any():
+                    target = batch.truth[rows] if which == 0 else batch.positions[rows]
+                    model.calibration[which, age - 1] = _factor(*spread(samples[rows]), floor, target,
+                                                                None if which == 0 else batch.covariances[rows])
+    return model.calibration
 
-        def excess(c: float) -> float:
-            S = c * C + floor + R
-            return float((innovation[:, None] @ torch.linalg.solve(S, innovation[:, :, None])).mean()) - 3.0
-        low, high = 1e-6, 1e6
-        prediction_factor = low if excess(low) < 0 else high if excess(high) > 0 else brentq(excess, low, high,
-                                                                                                rtol=1e-4)
-        model.calibration.copy_(torch.tensor([estimate_factor, prediction_factor], dtype=model.dtype))
-    return estimate_factor, prediction_factor
+
+def _factor(centre: Tensor, C: Tensor, floor: Tensor, target: Tensor, R: Tensor | None) -> float:
+    """The c that makes the mean of d' (c C + floor [+ R])^-1 d 3, d = target - centre: the NEES (R None,
+    C + floor scaled together) or the NIS (`calibrate`)."""
+    d = target - centre
+    if R is None:
+        return float((d[:, None] @ torch.linalg.solve(C + floor, d[:, :, None])).mean() / 3)
+
+    def excess(c: float) -> float:
+        return float((d[:, None] @ torch.linalg.solve(c * C + floor + R, d[:, :, None])).mean()) - 3.0
+    low, high = 1e-6, 1e6
+    return low if excess(low) < 0 else high if excess(high) > 0 else brentq(excess, low, high, rtol=1e-4)
 
 
 def load(path: Path) -> LSTMUpdate:

@@ -31,12 +31,11 @@ def estimator_config(params: Params) -> LSTMUpdateConfig:
     u = params.lstm_update
     return LSTMUpdateConfig(u.hidden, u.dropout, u.mc_samples, u.detach_prediction, u.position_scale_m,
                             u.velocity_scale_mps, u.acceleration_scale_mps2, u.time_scale_s, u.initial_alpha,
-                            u.initial_beta, u.floor_m)
+                            u.initial_beta, u.floor_m, u.start_velocity_std_mps, u.calibration_ages)
 
 
 def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
                           reports_dir: Path) -> None:
-    from lightning.pytorch.loggers import MLFlowLogger
     import torch
 
     u = params.lstm_update
@@ -51,15 +50,11 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
         raise io.InputError(f"{tuned_path}: file not found (run `dvc repro tune_kalman`)")
     tuned = load_settings(tuned_path)
     holdout = model_eval.holdout_plots(holdout_table, params.radar)
-    uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment, "train_lstm_update")
+    logger = experiment_tracking.lightning_logger(params, "train_lstm_update", "train-lstm-update", plots_path)
     torch.set_num_threads(params.training.threads)
-    logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="train_lstm_update", tracking_uri=uri,
-                          tags={**experiment_tracking.run_tags("train_lstm_update"),
-                                "input_data_sha256": experiment_tracking.data_hash(plots_path),
-                                "mlflow.source.name": "python -m pipeline train-lstm-update"})
     log.info("train_lstm_update: %d segments of up to %d plots (%d scored), MLflow run %s in %s", len(batch.times),
-             batch.times.shape[1], int(batch.scored.sum()), logger.run_id, uri)
+             batch.times.shape[1], int(batch.scored.sum()), logger.run_id,
+             experiment_tracking.tracking_uri(params.training.tracking_uri))
     try:
         logger.log_hyperparams({f"lstm_update.{key}": value for key, value in asdict(u).items()})
         torch.manual_seed(u.seed)
@@ -69,20 +64,21 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
                                                 params.training.deterministic), logger)
         torch.manual_seed(u.seed)  # the calibration's dropout masks
         factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)))
-        runs: dict[str, filter_holdout.FilterRun] = {"LSTM update (MC-dropout mean)": model,
-                                                     "LSTM update (dropout off)": model.deterministic}
+        runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": model}
         for kind, label in BASELINES.items():
             runs[label] = lambda rows, spec=FilterSpec.from_settings(tuned[kind]): rows.filtered(spec)
         torch.manual_seed(u.seed)  # the hold-out's dropout masks
         holdout_scores = filter_holdout.compare_detailed(holdout, params.radar, params.windows.filter_length, runs,
                                                          u.turn_share, u.range_shares)
         report = {"epoch_losses_m": losses, "seconds": seconds, "detach_prediction": u.detach_prediction,
-                  "calibration": {"estimate": factors[0], "prediction": factors[1]}, "holdout": holdout_scores}
+                  "calibration_by_age": {"estimate": factors[0].tolist(), "prediction": factors[1].tolist()},
+                  "holdout": holdout_scores}
         kalman_net.save(model, models_dir / "lstm_update.pt", {"epoch_losses_m": losses})
         io.write_json(report, reports_dir / "lstm_update.json")
-        ours = holdout_scores["filters"]["LSTM update (MC-dropout mean)"]
-        logger.log_metrics({"lstm_update.seconds": seconds, **{f"lstm_update.holdout_{key}": value
-                                                             for key, value in ours.items() if isinstance(value, float)}})
+        ours = holdout_scores["filters"]["LSTM update"]
+        logger.log_metrics({"lstm_update.seconds": seconds,
+                            **{f"lstm_update.holdout_{key}": value for key, value in ours.items()
+                               if isinstance(value, float)}})
         logger.experiment.log_artifact(logger.run_id, str(models_dir / "lstm_update.pt"))
         logger.experiment.log_artifact(logger.run_id, str(reports_dir / "lstm_update.json"))
     except BaseException:

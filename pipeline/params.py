@@ -371,6 +371,7 @@ class LSTMUpdate:
     initial_alpha: float
     initial_beta: float
     floor_m: float
+    start_velocity_std_mps: float
     restart_gap_s: float
     burn_in_updates: int
     segment_plots: int
@@ -380,6 +381,7 @@ class LSTMUpdate:
     learning_rate: float
     seed: int
     calibration_segments: int
+    calibration_ages: int
     turn_share: float
     range_shares: tuple[float, ...]
 
@@ -1061,6 +1063,10 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
     burn_in = _integer(tree, "burn_in_updates", p)
     if burn_in >= segment_plots:
         raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot sequence to score")
+    ages = _integer(tree, "calibration_ages", p, 1)
+    if ages > segment_plots:
+        raise ParamError(f"{p}.calibration_ages = {ages}: older than the training sequences it is fitted on "
+                         f"(segment_plots = {segment_plots})")
     shares = _get(tree, "range_shares", p)
     if (not isinstance(shares, list) or not shares or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in shares)):
@@ -1069,14 +1075,17 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
         split=_split_name(tree, p, splits), hidden=_integer(tree, "hidden", p, 1),
         dropout=_number(tree, "dropout", p, 0.0, 1.0, high_open=True), mc_samples=_integer(tree, "mc_samples", p, 1),
         detach_prediction=_boolean(tree, "detach_prediction", p),
-        position_scale_m=_positive(tree, "position_scale_m", p), velocity_scale_mps=_positive(tree, "velocity_scale_mps", p),
+        position_scale_m=_positive(tree, "position_scale_m", p),
+        velocity_scale_mps=_positive(tree, "velocity_scale_mps", p),
         acceleration_scale_mps2=_positive(tree, "acceleration_scale_mps2", p),
         time_scale_s=_positive(tree, "time_scale_s", p), initial_alpha=_number(tree, "initial_alpha", p, 0.0, 1.0),
         initial_beta=_number(tree, "initial_beta", p, 0.0, 2.0), floor_m=_positive(tree, "floor_m", p),
+        start_velocity_std_mps=_positive(tree, "start_velocity_std_mps", p),
         restart_gap_s=_positive(tree, "restart_gap_s", p), burn_in_updates=burn_in, segment_plots=segment_plots,
         truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
         epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
         seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
+        calibration_ages=ages,
         turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
         range_shares=tuple(float(v) for v in shares))
 

@@ -18,7 +18,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 CONFIG = LSTMUpdateConfig(hidden=8, dropout=0.0, mc_samples=8, detach_prediction=True, position_scale_m=1000.0,
                           velocity_scale_mps=400.0, acceleration_scale_mps2=10.0, time_scale_s=6.0, initial_alpha=0.5,
-                          initial_beta=0.2, floor_m=1.0)
+                          initial_beta=0.2, floor_m=1.0, start_velocity_std_mps=150.0,
+                          calibration_ages=4)
 SIGMA_M = 60.0  # plot noise per axis
 
 
@@ -50,7 +51,8 @@ def test_zeroed_lstm_contribution_gives_the_kalman_prediction():
         model.output.bias.zero_()
     rng = np.random.default_rng(3)
     x = torch.as_tensor(rng.normal(0.0, 100.0, (4, 2, 9)) + np.tile([4e6, 200.0, 1.0, 3e5, -50.0, 0.0, 4.9e6, 0, 0], 1))
-    ensemble = lstm_update.Ensemble(x, torch.zeros(4, 2, 8, dtype=x.dtype), torch.zeros(4, 2, 8, dtype=x.dtype))
+    memory = torch.zeros(4, 2, 8, dtype=x.dtype)
+    ensemble = lstm_update.Ensemble(x, memory, memory, torch.ones(4, dtype=torch.long))
     dt = torch.tensor([1.0, 4.0, 6.0, 12.0])
     z = torch.as_tensor(rng.normal(0.0, 1e5, (4, 3)))
     after, prior = model.step(ensemble, z, torch.eye(3, dtype=x.dtype).expand(4, 3, 3) * 1e4, dt, sample=True)
@@ -73,7 +75,7 @@ def test_mc_dropout_spread_is_zero_without_dropout_and_grows_with_it():
     weights = LSTMUpdate(CONFIG).state_dict()
     spreads = []
     for dropout in (0.0, 0.1, 0.4):
-        model = LSTMUpdate(replace(CONFIG, dropout=dropout))
+        model = LSTMUpdate(replace(CONFIG, dropout=dropout, start_velocity_std_mps=1e-6))
         model.load_state_dict(weights)
         torch.manual_seed(1)
         spreads.append(position_spread(model, batch))
@@ -156,3 +158,28 @@ def test_tracker_estimator_follows_the_sequence_run_and_gates_far_plots_out():
             if not dropout:
                 np.testing.assert_allclose(position, expected[row], rtol=1e-12)
         assert rejected >= (n - 4 if dropout else 0)
+
+
+def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
+    """`dvc repro train_lstm_update` in a copy of the tiny pipeline: the estimator loads with its
+    calibration, the report compares it with the tuned CA and IMM on the hold-out, one MLflow run."""
+    import json
+    import shutil
+    import sqlite3
+
+    from tests.servers import dvc
+    repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
+    (repository / "mlflow.db").unlink()  # its runs keep artifacts in the original's folder: a store of its own
+    dvc(repository, "repro", "train_lstm_update")
+    model = lstm_update.load(repository / "models" / "lstm_update.pt")
+    assert model.config.mc_samples == 4 and torch.all(model.calibration > 0)
+    assert model.calibration.shape == (2, model.config.calibration_ages)
+    report = json.loads((repository / "reports" / "lstm_update.json").read_text())
+    assert len(report["epoch_losses_m"]) == 1
+    scored = report["holdout"]["filters"]
+    assert {"LSTM update", "Kalman CA, Nelder-Mead tuned",
+            "IMM (CV + CA), Nelder-Mead tuned"} <= set(scored)
+    assert all(values["anees_bounds"][0] < 3 < values["anees_bounds"][1] for values in scored.values())
+    with sqlite3.connect(repository / "mlflow.db") as store:
+        names = [row[0] for row in store.execute("SELECT name FROM runs WHERE status = 'FINISHED'")]
+    assert names.count("train_lstm_update") == 1
