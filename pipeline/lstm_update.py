@@ -39,19 +39,23 @@ copies' second moment about the point estimate, sum_k (x_k - x_0)(x_k - x_0)' / 
 prediction's likewise (the gate's). The two factors depend on the track's age a (plots since its
 start: the start spread fades with it) up to `calibration_ages`, older tracks taking the last;
 they are fitted after training on training material, age by age (`calibrate`): the estimate's so
-that its mean NEES is 3, the prediction's so that the mean NIS against S = c C + R is 3. With
-dropout 0 one copy runs and the covariance is the floor.
+that its mean NEES is 3; the prediction's for the gate, so that the chi-square gate of probability
+p with S = c C + R lets through the share p of the training plots (its definition). A mean NIS of 3
+would not do: the LSTM's innovations have heavier tails than a Gaussian's, and such a gate rejects
+about 1 % of a track's own plots at every scan, where p = 0.999 promises 0.1 %. With dropout 0 one
+copy runs and the covariance is the floor.
 
 Shapes: B tracks, N samples, T steps, H hidden units; float64 like `torch_filters`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from scipy.optimize import brentq
+from scipy.stats import chi2
 from torch import Tensor, nn
 
 from pipeline import torch_filters
@@ -296,12 +300,12 @@ def run_sequences(model: LSTMUpdate, batch: SequenceBatch, samples: int, sample:
                ensemble)
 
 
-def calibrate(model: LSTMUpdate, batch: SequenceBatch) -> Tensor:
+def calibrate(model: LSTMUpdate, batch: SequenceBatch, gate_probability: float) -> Tensor:
     """Fit the covariance factors on `batch`'s updates, age by age up to `calibration_ages` (the last
     takes every older update; module docstring): the estimate's c = mean NEES of the uncalibrated
-    covariance / 3 (NEES scales as 1 / c), the prediction's the root of mean d' (c C + R)^-1 d = 3
-    (decreasing in c, scipy's brentq on [1e-6, 1e6], clipped there); 1 for an age without updates
-    (a start's estimate). Sets and returns them (2, calibration_ages). Without copies (dropout 0) all 1."""
+    covariance / 3 (NEES scales as 1 / c), the prediction's `_gate_factor`; 1 for an age without
+    updates (a start's estimate). Sets and returns them (2, calibration_ages). Without copies
+    (dropout 0) all 1."""
     if model.config.dropout == 0:
         return model.calibration
     with torch.no_grad():
@@ -314,23 +318,42 @@ def calibrate(model: LSTMUpdate, batch: SequenceBatch) -> Tensor:
             for which, (samples, ages) in enumerate(((run.estimates, run.ages), (run.predictions, run.prior_ages))):
                 rows = moving & ((ages == age) if age < top else (ages >= age))
                 if rows.any():
-                    target = batch.truth[rows] if which == 0 else batch.positions[rows]
-                    model.calibration[which, age - 1] = _factor(*spread(samples[rows]), floor, target,
-                                                                None if which == 0 else batch.covariances[rows])
+                    centre, C = spread(samples[rows])
+                    model.calibration[which, age - 1] = (
+                        _nees_factor(batch.truth[rows] - centre, C + floor) if which == 0 else
+                        _gate_factor(batch.positions[rows] - centre, C, floor + batch.covariances[rows],
+                                     gate_probability))
     return model.calibration
 
 
-def _factor(centre: Tensor, C: Tensor, floor: Tensor, target: Tensor, R: Tensor | None) -> float:
-    """The c that makes the mean of d' (c C + floor [+ R])^-1 d 3, d = target - centre: the NEES (R None,
-    C + floor scaled together) or the NIS (`calibrate`)."""
-    d = target - centre
-    if R is None:
-        return float((d[:, None] @ torch.linalg.solve(C + floor, d[:, :, None])).mean() / 3)
+def _distance(d: Tensor, S: Tensor) -> Tensor:
+    """d' S^-1 d (n,) of d (n, 3) and S (n, 3, 3)."""
+    return (d[:, None] @ torch.linalg.solve(S, d[:, :, None]))[:, 0, 0]
 
-    def excess(c: float) -> float:
-        return float((d[:, None] @ torch.linalg.solve(c * C + floor + R, d[:, :, None])).mean()) - 3.0
-    low, high = 1e-6, 1e6
-    return low if excess(low) < 0 else high if excess(high) > 0 else brentq(excess, low, high, rtol=1e-4)
+
+def _nees_factor(error: Tensor, covariance: Tensor) -> float:
+    """The c with mean NEES 3 of `error` (n, 3) against c `covariance` (n, 3, 3): mean NEES / 3."""
+    return float(_distance(error, covariance).mean() / 3)
+
+
+def _gate_factor(innovation: Tensor, C: Tensor, rest: Tensor, probability: float) -> float:
+    """The smallest c (within a factor 1e-4, in [1e-6, 1e6]) for which the chi-square gate of
+    `probability` (3 degrees of freedom) with S = c C + rest lets through that share of the
+    `innovation`s (n, 3); the share rejected falls as c grows (C positive semidefinite): bisection on
+    log c."""
+    threshold, allowed = chi2.ppf(probability, 3), 1.0 - probability
+
+    def rejected(log_c: float) -> float:
+        return float((_distance(innovation, math.exp(log_c) * C + rest) > threshold).double().mean())
+    low, high = math.log(1e-6), math.log(1e6)
+    if rejected(high) > allowed:
+        return 1e6
+    if rejected(low) <= allowed:
+        return 1e-6
+    while high - low > 1e-4:
+        middle = (low + high) / 2
+        low, high = (middle, high) if rejected(middle) > allowed else (low, middle)
+    return math.exp(high)
 
 
 def load(path: Path) -> LSTMUpdate:

@@ -2,7 +2,8 @@
 
 Trained by `filter_training.descend` (Lightning) on the material of the network-scaled filter's
 stage: the split's target plots less the windows stage's hold-out segments, restarted at gaps and
-every `segment_plots` plots. Then the MC-dropout covariance is calibrated on the first
+every `segment_plots` plots. Then the MC-dropout covariance is calibrated (for the estimate, and
+for the prediction to the tracker's gate, `tracker.kalman_gate_probability`) on the first
 `calibration_segments` training segments (`lstm_update.calibrate`), and the estimator is scored on
 the hold-out windows against the Nelder-Mead tuned CA filter it starts from and the tuned IMM
 (`models/kalman_tuned.json`) with `filter_holdout.compare_detailed`. Everything that can fail on bad
@@ -63,7 +64,8 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
                                   DescentConfig(u.epochs, u.batch_segments, u.learning_rate, u.truncation_steps, u.seed,
                                                 params.training.deterministic), logger)
         torch.manual_seed(u.seed)  # the calibration's dropout masks
-        factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)))
+        factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)),
+                                        params.tracker.kalman_gate_probability)
         runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": model}
         for kind, label in BASELINES.items():
             runs[label] = lambda rows, spec=FilterSpec.from_settings(tuned[kind]): rows.filtered(spec)

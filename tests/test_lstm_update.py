@@ -161,7 +161,8 @@ def test_tracker_estimator_follows_the_sequence_run_and_gates_far_plots_out():
 
 
 def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
-    """`dvc repro train_lstm_update` in a copy of the tiny pipeline: the estimator loads with its
+    """`dvc repro train_lstm_update` in a copy of the tiny pipeline (made there for `evaluate` already, run
+    again into a store of the copy's own): the estimator loads with its
     calibration, the report compares it with the tuned CA and IMM on the hold-out, one MLflow run."""
     import json
     import shutil
@@ -170,7 +171,7 @@ def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
     from tests.servers import dvc
     repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
     (repository / "mlflow.db").unlink()  # its runs keep artifacts in the original's folder: a store of its own
-    dvc(repository, "repro", "train_lstm_update")
+    dvc(repository, "repro", "--force", "--single-item", "train_lstm_update")  # evaluate's input: it ran already
     model = lstm_update.load(repository / "models" / "lstm_update.pt")
     assert model.config.mc_samples == 4 and torch.all(model.calibration > 0)
     assert model.calibration.shape == (2, model.config.calibration_ages)
@@ -183,3 +184,14 @@ def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
     with sqlite3.connect(repository / "mlflow.db") as store:
         names = [row[0] for row in store.execute("SELECT name FROM runs WHERE status = 'FINISHED'")]
     assert names.count("train_lstm_update") == 1
+
+
+def test_gate_factor_lets_through_the_gate_probability_of_gaussian_innovations():
+    """Innovations drawn from N(0, 4 C + R): the factor fitted for a 99 % gate is about 4."""
+    rng = np.random.default_rng(6)
+    factor = rng.normal(size=(20000, 3, 3)) * 30.0
+    C = torch.as_tensor(factor @ factor.transpose(0, 2, 1) + 100.0 * np.eye(3))
+    R = torch.as_tensor(np.broadcast_to(2500.0 * np.eye(3), (20000, 3, 3)).copy())
+    innovation = torch.as_tensor(np.einsum("nij,nj->ni", np.linalg.cholesky((4 * C + R).numpy()),
+                                           rng.normal(size=(20000, 3))))
+    assert lstm_update._gate_factor(innovation, C, R, 0.99) == pytest.approx(4.0, rel=0.15)
