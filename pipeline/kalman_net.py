@@ -204,8 +204,9 @@ class SequenceScaler:
         return scales
 
 
-def save(model: KalmanNet, path: Path, extras: dict | None = None) -> None:
-    """The config and weights in one torch file (written whole or not at all)."""
+def save(model: nn.Module, path: Path, extras: dict | None = None) -> None:
+    """A network with a dataclass `config` (this one, `lstm_update.LSTMUpdate`): the config and weights
+    (buffers included) in one torch file, written whole or not at all."""
     model_store.write_bundle({"config": asdict(model.config), "state_dict": model.state_dict(),
                               "extras": extras or {}}, path)
 

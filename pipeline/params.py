@@ -389,6 +389,34 @@ class Association:
     scenes_per_batch: int
     learning_rate: float
     seed: int
+class LSTMUpdate:
+    """The LSTM update on a Kalman prediction and its hold-out comparison (params.yaml `lstm_update`)."""
+
+    split: str
+    hidden: int
+    dropout: float
+    mc_samples: int
+    detach_prediction: bool
+    position_scale_m: float
+    velocity_scale_mps: float
+    acceleration_scale_mps2: float
+    time_scale_s: float
+    initial_alpha: float
+    initial_beta: float
+    floor_m: float
+    start_velocity_std_mps: float
+    restart_gap_s: float
+    burn_in_updates: int
+    segment_plots: int
+    truncation_steps: int
+    batch_segments: int
+    epochs: int
+    learning_rate: float
+    seed: int
+    calibration_segments: int
+    calibration_ages: int
+    turn_share: float
+    range_shares: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -405,6 +433,7 @@ class Params:
     kalman: Kalman
     kalman_net: KalmanNet
     association: Association
+    lstm_update: LSTMUpdate
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
 
@@ -1096,6 +1125,47 @@ def _association(tree: Mapping[str, Any]) -> Association:
         epochs=_integer(tree, "epochs", p, 1), scenes_per_epoch=_integer(tree, "scenes_per_epoch", p, 1),
         scenes_per_batch=_integer(tree, "scenes_per_batch", p, 1), learning_rate=_positive(tree, "learning_rate", p),
         seed=_integer(tree, "seed", p))
+def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Windows) -> LSTMUpdate:
+    """Checked before anything trains: dropout in [0, 1), at least one MC sample, training sequences
+    no shorter than the hold-out windows the estimator is scored on (`windows.filter_length`), the
+    truncation and burn-in within a sequence."""
+    p = "lstm_update"
+    segment_plots = _integer(tree, "segment_plots", p, 2)
+    if segment_plots < windows.filter_length:
+        raise ParamError(f"{p}.segment_plots = {segment_plots}: shorter than the hold-out windows it is scored on "
+                         f"(windows.filter_length = {windows.filter_length})")
+    truncation = _integer(tree, "truncation_steps", p, 1)
+    if truncation > segment_plots:
+        raise ParamError(f"{p}.truncation_steps = {truncation}: longer than the training sequences "
+                         f"(segment_plots = {segment_plots})")
+    burn_in = _integer(tree, "burn_in_updates", p)
+    if burn_in >= segment_plots:
+        raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot sequence to score")
+    ages = _integer(tree, "calibration_ages", p, 1)
+    if ages > segment_plots:
+        raise ParamError(f"{p}.calibration_ages = {ages}: older than the training sequences it is fitted on "
+                         f"(segment_plots = {segment_plots})")
+    shares = _get(tree, "range_shares", p)
+    if (not isinstance(shares, list) or not shares or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in shares)):
+        raise ParamError(f"{p}.range_shares = {shares!r}: must list positive numbers")
+    return LSTMUpdate(
+        split=_split_name(tree, p, splits), hidden=_integer(tree, "hidden", p, 1),
+        dropout=_number(tree, "dropout", p, 0.0, 1.0, high_open=True), mc_samples=_integer(tree, "mc_samples", p, 1),
+        detach_prediction=_boolean(tree, "detach_prediction", p),
+        position_scale_m=_positive(tree, "position_scale_m", p),
+        velocity_scale_mps=_positive(tree, "velocity_scale_mps", p),
+        acceleration_scale_mps2=_positive(tree, "acceleration_scale_mps2", p),
+        time_scale_s=_positive(tree, "time_scale_s", p), initial_alpha=_number(tree, "initial_alpha", p, 0.0, 1.0),
+        initial_beta=_number(tree, "initial_beta", p, 0.0, 2.0), floor_m=_positive(tree, "floor_m", p),
+        start_velocity_std_mps=_positive(tree, "start_velocity_std_mps", p),
+        restart_gap_s=_positive(tree, "restart_gap_s", p), burn_in_updates=burn_in, segment_plots=segment_plots,
+        truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
+        epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
+        seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
+        calibration_ages=ages,
+        turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
+        range_shares=tuple(float(v) for v in shares))
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:
@@ -1125,6 +1195,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
         association=_association(_get(tree, "association", "params")),
+        lstm_update=_lstm_update(_get(tree, "lstm_update", "params"), routes.splits, windows),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )

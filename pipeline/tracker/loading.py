@@ -22,7 +22,8 @@ from pipeline.tracker.models import Models
 # piece -> (file in the models folder, the stage that makes it)
 PIECES = {"predictor": ("predictor.pt", "train_predictor"), "filter": ("filter.pt", "train_filter"),
           "autoencoder": ("autoencoder.pt", "train_autoencoder"),
-          registry.TUNED_FILTERS: ("kalman_tuned.json", "tune_kalman")}
+          registry.TUNED_FILTERS: ("kalman_tuned.json", "tune_kalman"),
+          registry.LSTM_UPDATE: ("lstm_update.pt", "train_lstm_update")}
 SCALER_OF_NETWORK = {"predictor": "states", "filter": "plots", "autoencoder": "plots"}
 
 
@@ -67,5 +68,9 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
             if kind is not None and kind not in filters:
                 raise io.InputError(f"{path}: has no tuned {kind} filter, which {name} runs (make it with "
                                     "`dvc repro tune_kalman`)")
+    lstm_update = None
+    if registry.LSTM_UPDATE in from_models_dir:
+        from pipeline import lstm_update as lstm_update_module  # imports torch: only when the method runs
+        lstm_update = lstm_update_module.load(from_models_dir[registry.LSTM_UPDATE])
     return Models(networks.get("predictor"), networks.get("filter"), networks.get("autoencoder"), filters,
-                  params.tracker.inference)
+                  params.tracker.inference, lstm_update)

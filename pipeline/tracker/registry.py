@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
 NETWORKS = ("predictor", "filter")  # the estimator of every neural method
 TUNED_FILTERS = "kalman_tuned"
+LSTM_UPDATE = "lstm_update"  # the LSTM update on a Kalman prediction (models/lstm_update.pt)
 GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
@@ -122,6 +123,14 @@ def _classical(name: str, kind: str, global_nearest: bool):
     return compose
 
 
+def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+    """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance."""
+    from pipeline.tracker.gate import ChiSquareGate
+    from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
+    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update),
+                        ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params)
+
+
 def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     """The tuned IMM given the true association: every live track a candidate, none gated."""
     from pipeline.tracker.assigner import TrueAssociation
@@ -149,6 +158,7 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("mia", "MIA", NEURAL, NETWORKS, _mia, 2.2),
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
+    Method("lstm_update", "LSTM update", NEURAL, (LSTM_UPDATE,), _lstm_update, 3.0),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
