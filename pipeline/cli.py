@@ -68,6 +68,8 @@ def _train_kalman_net(args: argparse.Namespace) -> None:
 def _train_association(args: argparse.Namespace) -> None:
     from pipeline.association_stage import run_train_association
     run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
+
+
 def _train_lstm_update(args: argparse.Namespace) -> None:
     from pipeline.lstm_update_stage import run_train_lstm_update
     run_train_lstm_update(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),

@@ -389,6 +389,9 @@ class Association:
     scenes_per_batch: int
     learning_rate: float
     seed: int
+
+
+@dataclass(frozen=True)
 class LSTMUpdate:
     """The LSTM update on a Kalman prediction and its hold-out comparison (params.yaml `lstm_update`)."""
 
@@ -1125,6 +1128,8 @@ def _association(tree: Mapping[str, Any]) -> Association:
         epochs=_integer(tree, "epochs", p, 1), scenes_per_epoch=_integer(tree, "scenes_per_epoch", p, 1),
         scenes_per_batch=_integer(tree, "scenes_per_batch", p, 1), learning_rate=_positive(tree, "learning_rate", p),
         seed=_integer(tree, "seed", p))
+
+
 def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Windows) -> LSTMUpdate:
     """Checked before anything trains: dropout in [0, 1), at least one MC sample, training sequences
     no shorter than the hold-out windows the estimator is scored on (`windows.filter_length`), the
