@@ -17,6 +17,7 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
+from pipeline.track_fusion import CRITERIA as FUSION_CRITERIA
 from pipeline.tracker import registry
 
 # New strategies go at the end: a route's random stream is seeded by its strategy's index here.
@@ -392,6 +393,17 @@ class Association:
 
 
 @dataclass(frozen=True)
+class Associate:
+    """`python -m pipeline associate` on two track tables (params.yaml `associate`; pipeline/common_time_states.py)."""
+
+    step_s: float                   # common times this far apart over the tables' overlap
+    max_age_s: float                # a track's last update no older than this at a common time
+    velocity_baseline_s: float      # velocity from the last update and the latest one at least this much earlier
+    acceleration_std_mps2: float    # white-noise acceleration of the extrapolation to the common time
+    fusion_criterion: str           # covariance intersection minimises this (track_fusion.CRITERIA)
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -407,6 +419,7 @@ class Params:
     association: Association
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
+    associate: Associate
 
 
 class _Section(Mapping):
@@ -1098,6 +1111,18 @@ def _association(tree: Mapping[str, Any]) -> Association:
         seed=_integer(tree, "seed", p))
 
 
+def _associate(tree: Mapping[str, Any]) -> Associate:
+    """Every knob checked; the fusion criterion one of track_fusion's."""
+    p = "associate"
+    max_age = _positive(tree, "max_age_s", p)
+    criterion = _text(tree, "fusion_criterion", p)
+    if criterion not in FUSION_CRITERIA:
+        raise ParamError(f"{p}.fusion_criterion = {criterion!r}: must be one of {FUSION_CRITERIA}")
+    return Associate(step_s=_positive(tree, "step_s", p), max_age_s=max_age,
+                     velocity_baseline_s=_positive(tree, "velocity_baseline_s", p),
+                     acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion)
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -1127,6 +1152,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         association=_association(_get(tree, "association", "params")),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
+        associate=_associate(_get(tree, "associate", "params")),
     )
     unknown = tree.unread()
     if unknown:
