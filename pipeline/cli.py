@@ -71,6 +71,11 @@ def _train_association(args: argparse.Namespace) -> None:
     run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
 
 
+def _fusion(args: argparse.Namespace) -> None:
+    from pipeline.fusion_stage import run_fusion
+    run_fusion(load_params(args.params), Path(args.models), Path(args.reports))
+
+
 def _compare(args: argparse.Namespace) -> None:
     from pipeline.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
@@ -165,6 +170,9 @@ COMMANDS = {
                           "bias-robust methods against the bias (Lightning, one MLflow run).",
                           "python -m pipeline train-association --models models --reports reports",
                           ["params", "models", "reports"]),
+    "fusion": (_fusion, "Two radars of params fusion: the multi-target scenes seen by both, each tracked alone, their "
+               "tracks associated by every method and fused; GOSPA of each picture (reports/fusion.json).",
+               "python -m pipeline fusion --models models --reports reports", ["params", "models", "reports"]),
     "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
                 "against the tuned Kalman filters on the hold-out.",
                 "python -m pipeline compare --windows data/windows --models models --reports reports",

@@ -10,13 +10,14 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 import yaml
 
+from pipeline.track_association import METHODS as ASSOCIATION_METHODS
 from pipeline.track_fusion import CRITERIA as FUSION_CRITERIA
 from pipeline.tracker import registry
 
@@ -404,6 +405,31 @@ class Associate:
 
 
 @dataclass(frozen=True)
+class FusionRadar:
+    """One radar of the fusion stage: what it is (`radar`, params' `radar` with the entry's keys changed), its
+    registration bias (range m, azimuth deg, site east and north m: the tracker believes the radar that much
+    away from where it is) and the seed of its detections, noise and clutter (in place of simulate.seed)."""
+
+    radar: Radar
+    bias_range_m: float
+    bias_azimuth_deg: float
+    bias_east_m: float
+    bias_north_m: float
+    seed: int
+
+
+@dataclass(frozen=True)
+class Fusion:
+    """The fusion stage (params.yaml `fusion`; pipeline/radar_fusion.py)."""
+
+    scenes: int
+    tracker: str
+    window_m: float
+    methods: tuple[str, ...]
+    radars: tuple[FusionRadar, FusionRadar]
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -420,6 +446,7 @@ class Params:
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
     associate: Associate
+    fusion: Fusion
 
 
 class _Section(Mapping):
@@ -1123,6 +1150,49 @@ def _associate(tree: Mapping[str, Any]) -> Associate:
                      acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion)
 
 
+FUSION_BIAS_KEYS = ("bias_range_m", "bias_azimuth_deg", "bias_east_m", "bias_north_m")
+
+
+def _fusion_radar(entry: Any, index: int, radar_tree: Mapping[str, Any]) -> FusionRadar:
+    """An entry of fusion.radars: params' radar with the entry's radar keys changed (checked as `radar` is), its
+    biases and seed."""
+    p = f"fusion.radars[{index}]"
+    if not isinstance(entry, Mapping):
+        raise ParamError(f"{p} = {entry!r}: must be a mapping of radar keys, biases and seed")
+    changes = {key: entry[key] for key in entry if key not in (*FUSION_BIAS_KEYS, "seed")}
+    radar_keys = [field.name for field in fields(Radar)]
+    unknown = sorted(set(changes) - set(radar_keys))
+    if unknown:
+        raise ParamError(f"{p}.{unknown[0]}: unknown key (a radar key, one of {FUSION_BIAS_KEYS} or seed)")
+    # only the radar's known keys are taken from `radar`: a misspelt one there stays unread, hence an error
+    base = {key: radar_tree[key] for key in radar_keys if key in radar_tree}
+    try:
+        radar = _radar({**base, **changes})
+    except ParamError as error:
+        raise ParamError(f"{p}: {error}") from None
+    return FusionRadar(radar, *(_number(entry, key, p) for key in FUSION_BIAS_KEYS), _integer(entry, "seed", p))
+
+
+def _fusion(tree: Mapping[str, Any], radar_tree: Mapping[str, Any]) -> Fusion:
+    """Two radars of distinct ids (track-to-track association pairs two radars' tracks); registered methods."""
+    p = "fusion"
+    entries = _get(tree, "radars", p)
+    if not isinstance(entries, list) or len(entries) != 2:
+        raise ParamError(f"{p}.radars = {entries!r}: must list two radars (association pairs two radars' tracks)")
+    radars = tuple(_fusion_radar(entry, index, radar_tree) for index, entry in enumerate(entries))
+    if radars[0].radar.radar_id == radars[1].radar.radar_id:
+        raise ParamError(f"{p}.radars: both radars have id {radars[0].radar.radar_id} (sac * 256 + sic): give the "
+                         "second its own sic")
+    tracker = _text(tree, "tracker", p)
+    if tracker not in registry.TRACKERS:
+        raise ParamError(f"{p}.tracker = {tracker!r}: must be one of {registry.TRACKERS}")
+    methods = _get(tree, "methods", p)
+    if not isinstance(methods, list) or not methods or not set(methods) <= set(ASSOCIATION_METHODS):
+        raise ParamError(f"{p}.methods = {methods!r}: must list some of {ASSOCIATION_METHODS}")
+    return Fusion(scenes=_integer(tree, "scenes", p, 1), tracker=tracker, window_m=_positive(tree, "window_m", p),
+                  methods=tuple(methods), radars=radars)
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -1153,6 +1223,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
         associate=_associate(_get(tree, "associate", "params")),
+        fusion=_fusion(_get(tree, "fusion", "params"), _get(tree, "radar", "params")),
     )
     unknown = tree.unread()
     if unknown:

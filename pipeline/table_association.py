@@ -150,7 +150,7 @@ def pairs_table(snapshots: list[Snapshot], decisions: list[Decision]) -> pa.Tabl
     return pa.concat_tables(parts) if parts else PAIRS_SCHEMA.empty_table()
 
 
-def _picture(snapshot: Snapshot, decision: Decision, criterion: str) -> tuple[np.ndarray, ...]:
+def picture(snapshot: Snapshot, decision: Decision, criterion: str) -> tuple[np.ndarray, ...]:
     """One time's picture: source index (R,), track ids (R, 2) (-1 where none), states (R, 6), covariances
     (R, 6, 6), weights (R,) (NaN for unpaired rows); fused pairs first, then each user's unpaired tracks."""
     (x1, x2), (p1, p2), pairs = snapshot.states, snapshot.covariances, decision.pairs
@@ -173,7 +173,7 @@ def fused_table(snapshots: list[Snapshot], decisions: list[Decision], frame: Fra
     """FUSED_SCHEMA rows: the fused air picture at every common time (module docstring)."""
     parts = []
     for snapshot, decision in zip(snapshots, decisions):
-        source, ids, states, covariances, weights = _picture(snapshot, decision, criterion)
+        source, ids, states, covariances, weights = picture(snapshot, decision, criterion)
         position = frame.origin + states[:, :3] @ frame.rotation
         ecef_covariance = frame.rotation.T @ covariances[:, :3, :3] @ frame.rotation
         latitude, longitude, altitude = geodesy.ecef_to_geodetic(position)

@@ -110,6 +110,12 @@ def read_track_table(path: Path, radar_path: Path) -> TrackTable:
     sites = read_sites(radar_path)
     table = io.read_parquet(path, TRACK_SCHEMA, optional=("scenario_id", "association_error", *COVARIANCE_COLUMNS))
     _check_radars(path, radar_path, table.column("radar_id").to_numpy(), sites)
+    return track_table(table, sites, path)
+
+
+def track_table(table: pa.Table, sites: dict[int, np.ndarray], path: Path) -> TrackTable:
+    """The confirmed updates of a TRACK_SCHEMA table whose radars are all in `sites`, checked (module docstring;
+    errors name `path`)."""
     confirmed = np.asarray(table.column("status").to_pylist()) == CONFIRMED
     rows = np.flatnonzero(confirmed)
     table = table.filter(pa.array(confirmed))
