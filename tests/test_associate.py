@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from pipeline import association_net, association_report, cli
+from pipeline import association_net, association_report, cli, geodesy
 from pipeline.params import ParamError
 from pipeline.track_association import METHODS
 from tests import tracker_fixtures as tf
@@ -26,6 +26,7 @@ from tests.project import write_params
 SECOND_SITE = (61.2, 23.1, 120.0)  # about 120 km from the default radar
 SCANS = 20
 NOISE_M = 40.0  # position noise of the plots, per ECEF axis
+SITE_ERROR_M = 400.0  # the biased second user's site error, east: beyond the chi-square gate of its tracks
 
 
 @pytest.fixture(scope="module")
@@ -47,25 +48,39 @@ def models(tmp_path_factory, params) -> Path:
     return folder
 
 
+def track_user(folder: Path, params, params_path: Path, models: Path, radar_id: int,
+               site: tuple[float, float, float] | None, site_error_east_m: float = 0.0) -> tuple[Path, Path]:
+    """One user's track table (`track --method imm_gnn` on its own radar's noisy plots of the aircraft) and its
+    radar description, whose site may be wrong by `site_error_east_m` (a registration bias: the user's tracks
+    are then that far off)."""
+    velocity = np.array([180.0, 90.0, 0.0])
+    offset = {1: 0.0, 2: 3.0}[radar_id]  # the second radar's scans 3 s after the first's
+    radar = params.radar if site is None else tf.radar_at(params.radar, *site)
+    start = np.array([40e3, 60e3, 9000.0]) + velocity * offset
+    features = tf.straight_features(params.radar, tuple(start), tuple(velocity), SCANS, t_offset=offset)
+    features[:, 1:4] += np.random.default_rng(radar_id).normal(0.0, NOISE_M, (len(features), 3))
+    plots = tf.measurement_table(features, 1000 * radar_id + np.arange(len(features)), radar, radar_id,
+                                 scenario_id=7)
+    east = geodesy.enu_rotation(radar.latitude_deg, radar.longitude_deg)[0]
+    latitude, longitude, height = geodesy.ecef_to_geodetic(geodesy.radar_site_ecef(radar) + site_error_east_m * east)
+    described = tf.radar_at(radar, float(latitude), float(longitude), float(height))
+    plots_path, radar_path = tf.write_recording(folder, plots, tf.radar_table(radar_id, described))
+    tracks = folder / "tracks.parquet"
+    assert cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar",
+                     str(radar_path), "--models", str(models), "--method", "imm_gnn", "--out", str(tracks)]) == 0
+    return tracks, radar_path
+
+
 @pytest.fixture(scope="module")
 def users(tmp_path_factory, params, models) -> dict[str, Path]:
-    """Each user's track table (track --method imm_gnn on its own radar's plots) and radar description."""
+    """Each user's track table and radar description, and the second user's again with its site wrong."""
     folder = tmp_path_factory.mktemp("users")
-    params_path = write_params(tf.params_tree(), folder / "params.yaml")
-    velocity = np.array([180.0, 90.0, 0.0])
-    out = {"params": params_path}
-    for radar_id, site, offset in ((1, None, 0.0), (2, SECOND_SITE, 3.0)):
-        radar = params.radar if site is None else tf.radar_at(params.radar, *site)
-        start = np.array([40e3, 60e3, 9000.0]) + velocity * offset
-        features = tf.straight_features(params.radar, tuple(start), tuple(velocity), SCANS, t_offset=offset)
-        features[:, 1:4] += np.random.default_rng(radar_id).normal(0.0, NOISE_M, (len(features), 3))
-        plots = tf.measurement_table(features, 1000 * radar_id + np.arange(len(features)), radar, radar_id,
-                                     scenario_id=7)
-        plots_path, radar_path = tf.write_recording(folder / f"user{radar_id}", plots, tf.radar_table(radar_id, radar))
-        tracks = folder / f"user{radar_id}" / "tracks.parquet"
-        assert cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar",
-                         str(radar_path), "--models", str(models), "--method", "imm_gnn", "--out", str(tracks)]) == 0
-        out[f"tracks{radar_id}"], out[f"radar{radar_id}"] = tracks, radar_path
+    out = {"params": write_params(tf.params_tree(), folder / "params.yaml")}
+    for radar_id, site in ((1, None), (2, SECOND_SITE)):
+        out[f"tracks{radar_id}"], out[f"radar{radar_id}"] = track_user(folder / f"user{radar_id}", params,
+                                                                       out["params"], models, radar_id, site)
+    out["biased_tracks2"], out["biased_radar2"] = track_user(folder / "biased", params, out["params"], models, 2,
+                                                             SECOND_SITE, SITE_ERROR_M)
     return out
 
 
@@ -112,6 +127,22 @@ def test_the_fused_track_lies_on_the_aircraft(users, models, tmp_path, params):
     position = np.column_stack([np.asarray(fused[f"{a}_ecef_m"])[rows] for a in "xyz"])
     assert np.linalg.norm(position - truth_ecef, axis=1).max() < 5 * NOISE_M
     assert all(0.0 <= fused["weight_1"][k] <= 1.0 for k in rows)
+
+
+def test_a_registration_bias_is_estimated_by_bias_robust_and_defeats_the_statistical_test(users, models, tmp_path):
+    """The second user believes its radar 400 m east of where it is, so it places its plots, and its track, 400 m
+    east of the aircraft. The statistical test's gate refuses the pair; bias_robust pairs the tracks and
+    estimates the offset (second minus first, in the common frame: about 400 m east) at every common time within
+    three plot sigmas (one pair's estimate is the difference of two tracks' errors), on average within one."""
+    biased = (users["tracks1"], users["biased_tracks2"]), (users["radar1"], users["biased_radar2"])
+    assert associate(users, models, tmp_path / "statistical", "statistical", *biased) == 0
+    assert pq.read_table(tmp_path / "statistical" / "pairs.parquet").num_rows == 0
+    assert associate(users, models, tmp_path / "robust", "bias_robust", *biased) == 0
+    pairs = pq.read_table(tmp_path / "robust" / "pairs.parquet").to_pydict()
+    assert len(pairs["time_unix_s"]) >= 5
+    offset = np.column_stack([pairs["bias_east_m"], pairs["bias_north_m"]])
+    assert np.linalg.norm(offset - [SITE_ERROR_M, 0.0], axis=1).max() < 3 * NOISE_M
+    assert np.linalg.norm(offset.mean(axis=0) - [SITE_ERROR_M, 0.0]) < NOISE_M
 
 
 def rewritten(source: Path, folder: Path, column: str, change) -> Path:
