@@ -129,6 +129,16 @@ def test_the_fused_track_lies_on_the_aircraft(users, models, tmp_path, params):
     assert all(0.0 <= fused["weight_1"][k] <= 1.0 for k in rows)
 
 
+def test_the_same_tables_give_the_same_bytes_and_keep_the_users_file_mode(users, models, tmp_path):
+    """Run twice, once over outputs the user made group-writable: identical files, the mode kept."""
+    assert associate(users, models, tmp_path / "one", "bias_robust") == 0
+    (tmp_path / "one" / "fused.parquet").chmod(0o664)
+    first = {name: (tmp_path / "one" / name).read_bytes() for name in ("pairs.parquet", "fused.parquet")}
+    assert associate(users, models, tmp_path / "one", "bias_robust") == 0
+    assert {name: (tmp_path / "one" / name).read_bytes() for name in first} == first
+    assert (tmp_path / "one" / "fused.parquet").stat().st_mode & 0o777 == 0o664
+
+
 def test_a_registration_bias_is_estimated_by_bias_robust_and_defeats_the_statistical_test(users, models, tmp_path):
     """The second user believes its radar 400 m east of where it is, so it places its plots, and its track, 400 m
     east of the aircraft. The statistical test's gate refuses the pair; bias_robust pairs the tracks and
