@@ -16,7 +16,9 @@ Per scene (the first `fusion.scenes` of `scenes.plan_scene`, planned around para
 4. GOSPA (`gospa.gospa`, cutoff and order of params `evaluate`) at each common time between the truth and
    each picture: radar 1's tracks alone, radar 2's alone, each method's fused picture, the oracle's. The
    truth at a time is the aircraft some radar has detected within the last `associate.max_age_s`
-   (positions from the route's trajectory, `simulate.trajectory_of`), in the common ENU frame, 3-D.
+   (positions from the route's trajectory, `simulate.trajectory_of`), in the common ENU frame, 3-D. And each
+   picture's track switches (`gospa.track_switches` over the GOSPA assignments: how often an aircraft's assigned
+   track changes identity; a fused track's identity is its pair, so a change of association is a switch).
 Association is scored against the oracle's pairs: accuracy = correct / oracle pairs, false and missed pairs.
 """
 
@@ -88,23 +90,46 @@ def oracle_pairs(snapshot: Snapshot, targets: tuple[dict[int, int], dict[int, in
 
 
 def truth_positions(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray], time: float, max_age_s: float,
-                    frame: Frame) -> np.ndarray:
-    """(T, 3) ENU positions at `time` of the aircraft detected (target ids (D,), plot times (D,)) within
-    `max_age_s` before it by some radar."""
+                    frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """Ids (T,) and ENU positions (T, 3) at `time` of the aircraft detected (target ids (D,), plot times (D,))
+    within `max_age_s` before it by some radar."""
     target, plot_time = detections
     seen = set(target[(plot_time <= time) & (plot_time >= time - max_age_s)].tolist())
-    positions = []
+    ids, positions = [], []
     for route in simulate.routes_by_id(routes):
         aircraft = int(route["route_id"][0])
         if aircraft in seen and route["time_unix_s"][0] <= time <= route["time_unix_s"][-1]:
+            ids.append(aircraft)
             positions.append(simulate.trajectory_of(route)(time))
-    return (np.asarray(positions).reshape(-1, 3) - frame.origin) @ frame.rotation.T
+    return np.asarray(ids, dtype=np.int64), (np.asarray(positions).reshape(-1, 3) - frame.origin) @ frame.rotation.T
 
 
-def picture_gospa(truth: np.ndarray, estimates: np.ndarray, params: Params) -> float:
-    """GOSPA (m) of one picture's positions (K, 3) against the truth (T, 3), params `evaluate`'s cutoff and order."""
-    distances = np.linalg.norm(truth[:, None] - estimates[None], axis=-1)
-    return gospa.gospa(distances, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+def fused_identity(ids: np.ndarray) -> np.ndarray:
+    """One id (R,) per picture row from its track ids (R, 2) (-1 where none): a fused track is its pair, so its
+    identity changes when the association does."""
+    return (ids[:, 0] + 1) * 2 ** 31 + (ids[:, 1] + 1)
+
+
+class PictureScore:
+    """A picture's GOSPA summed over common times and the (time, truth, identity) pairs its assignments made,
+    for the track switches (`gospa.track_switches`)."""
+
+    def __init__(self) -> None:
+        self.gospa_sum = 0.0
+        self.assigned: list[np.ndarray] = []
+
+    def add(self, time_index: int, truth_ids: np.ndarray, truth: np.ndarray, identity: np.ndarray,
+            estimates: np.ndarray, params: Params) -> None:
+        """One common time: truths (T,) at (T, 3), the picture's identities (K,) at (K, 3)."""
+        distances = np.linalg.norm(truth[:, None] - estimates[None], axis=-1)
+        parts, rows, columns = gospa.gospa_parts(distances, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+        self.gospa_sum += float(parts.sum() ** (1.0 / params.evaluate.gospa_order))
+        self.assigned.append(np.column_stack([np.full(len(rows), time_index), truth_ids[rows], identity[columns]]))
+
+    def switches(self) -> int:
+        assigned = np.concatenate(self.assigned) if self.assigned else np.zeros((0, 3), dtype=np.int64)
+        truths = np.unique(assigned[:, 1])
+        return int(gospa.track_switches(assigned[:, 1], assigned[:, 0], assigned[:, 2], truths).sum())
 
 
 def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
@@ -113,15 +138,12 @@ def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
     return np.array([len(got & true), len(got - true), len(true - got)])
 
 
-def scene_scores(params: Params, scene_id: int, models_dir: Path,
-                 model: association_net.AssociationNet | None) -> dict[str, np.ndarray]:
-    """One scene's sums over its common times: "gospa_<picture>" (GOSPA summed), "pairs_<method>" ([correct,
-    false, missed]), "oracle_pairs" and "times" (the count of common times)."""
+def local_tracks(params: Params, scene_id: int, routes: pa.Table, models_dir: Path
+                 ) -> tuple[list[TrackTable], list[dict[int, int]], tuple[np.ndarray, np.ndarray]]:
+    """Each radar's track table of the scene, each track's majority target, and all radars' detections
+    (target ids, plot times)."""
     fusion = params.fusion
-    routes = scenes.scene_routes(params, scene_id, scenes.plan_scene(params, scene_id))
-    tables: list[TrackTable] = []
-    targets: list[dict[int, int]] = []
-    detections = []
+    tables, targets, detections = [], [], []
     for fusion_radar in fusion.radars:
         plots = radar_plots(params, fusion_radar, scene_id, routes)
         believed = believed_radar(fusion_radar)
@@ -131,48 +153,64 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
                                   Path(f"scene {scene_id} radar {fusion_radar.radar.radar_id} tracks")))
         targets.append(majority_targets(tracks, plots))
         detections.append((plots.column("target_id").to_numpy(), plots.column("time_unix_s").to_numpy()))
+    return tables, targets, tuple(np.concatenate(parts) for parts in zip(*detections))
+
+
+def scene_scores(params: Params, scene_id: int, models_dir: Path,
+                 model: association_net.AssociationNet | None) -> tuple[dict[str, PictureScore], dict[str, np.ndarray]]:
+    """One scene's score of each picture ("radar_<id>", "fused_<method>", "fused_oracle") and counts: "pairs_<method>"
+    ([correct, false, missed]), "oracle_pairs" and "times" (the common times)."""
+    routes = scenes.scene_routes(params, scene_id, scenes.plan_scene(params, scene_id))
+    tables, targets, detected = local_tracks(params, scene_id, routes, models_dir)
     frame = common_frame(*tables)
     snapshots = common_snapshots(*tables, frame, params.associate)
-    detected = tuple(np.concatenate(parts) for parts in zip(*detections))
     decisions = {method: table_association.decide(snapshots, method, params.association, model)
-                 for method in fusion.methods}
+                 for method in params.fusion.methods}
     decisions[ORACLE] = [Decision(oracle_pairs(s, (targets[0], targets[1])), None) for s in snapshots]
-    radar_names = [f"radar_{r.radar.radar_id}" for r in fusion.radars]
-    scores: dict[str, np.ndarray] = {"times": np.array(len(snapshots))}
+    radar_names = [f"radar_{r.radar.radar_id}" for r in params.fusion.radars]
+    pictures = {name: PictureScore() for name in [*radar_names, *(f"fused_{m}" for m in decisions)]}
+    counts: dict[str, np.ndarray] = {"times": np.array(len(snapshots)), "oracle_pairs": np.array(0),
+                                     **{f"pairs_{m}": np.zeros(3, dtype=np.int64) for m in params.fusion.methods}}
     for index, snapshot in enumerate(snapshots):
-        truth = truth_positions(routes, detected, snapshot.time, params.associate.max_age_s, frame)
-        for name, states in zip(radar_names, snapshot.states):
-            scores[f"gospa_{name}"] = scores.get(f"gospa_{name}", 0.0) + picture_gospa(truth, states[:, :3], params)
+        truth_ids, truth = truth_positions(routes, detected, snapshot.time, params.associate.max_age_s, frame)
+        for name, ids, states in zip(radar_names, snapshot.ids, snapshot.states):
+            pictures[name].add(index, truth_ids, truth, ids, states[:, :3], params)
         oracle = decisions[ORACLE][index].pairs
         for method, made in decisions.items():
-            states = table_association.picture(snapshot, made[index], params.associate.fusion_criterion)[2]
-            key = f"gospa_fused_{method}"
-            scores[key] = scores.get(key, 0.0) + picture_gospa(truth, states[:, :3], params)
+            _, ids, states, _, _ = table_association.picture(snapshot, made[index], params.associate.fusion_criterion)
+            pictures[f"fused_{method}"].add(index, truth_ids, truth, fused_identity(ids), states[:, :3], params)
             if method != ORACLE:
-                scores[f"pairs_{method}"] = scores.get(f"pairs_{method}", 0) + _pair_counts(made[index].pairs, oracle)
-        scores["oracle_pairs"] = scores.get("oracle_pairs", 0) + len(oracle)
+                counts[f"pairs_{method}"] += _pair_counts(made[index].pairs, oracle)
+        counts["oracle_pairs"] += len(oracle)
     log.info("fusion: scene %d, %d common times, %d oracle pairs", scene_id, len(snapshots),
-             int(scores.get("oracle_pairs", 0)))
-    return scores
+             int(counts["oracle_pairs"]))
+    return pictures, counts
 
 
 def fusion_report(params: Params, models_dir: Path, model: association_net.AssociationNet | None) -> dict:
-    """reports/fusion.json: mean GOSPA (m) per common time of each picture; per method association accuracy,
-    false and missed pairs against the oracle's; each fused picture's GOSPA relative to the better radar's."""
+    """reports/fusion.json: per picture the mean GOSPA (m) per common time and the track switches (summed over
+    scenes); each fused picture's GOSPA relative to the better radar's; per method association accuracy, false
+    and missed pairs against the oracle's."""
+    gospa_sums: dict[str, float] = {}
+    switches: dict[str, int] = {}
     totals: dict[str, np.ndarray] = {}
     for scene_id in range(params.fusion.scenes):
-        for key, value in scene_scores(params, scene_id, models_dir, model).items():
+        pictures, counts = scene_scores(params, scene_id, models_dir, model)
+        for name, score in pictures.items():
+            gospa_sums[name] = gospa_sums.get(name, 0.0) + score.gospa_sum
+            switches[name] = switches.get(name, 0) + score.switches()
+        for key, value in counts.items():
             totals[key] = totals.get(key, 0) + value
     times = max(int(totals["times"]), 1)
-    pictures = {key[len("gospa_"):]: float(value) / times for key, value in sorted(totals.items())
-                if key.startswith("gospa_")}
-    better = min(value for key, value in pictures.items() if key.startswith("radar_"))
-    oracle_pairs_count = max(int(totals.get("oracle_pairs", 0)), 1)
+    mean_gospa = {name: value / times for name, value in sorted(gospa_sums.items())}
+    better = min(value for name, value in mean_gospa.items() if name.startswith("radar_"))
+    oracle_pairs_count = max(int(totals["oracle_pairs"]), 1)
     association = {method: {"accuracy": float(totals[f"pairs_{method}"][0]) / oracle_pairs_count,
                             "false_pairs": int(totals[f"pairs_{method}"][1]),
                             "missed_pairs": int(totals[f"pairs_{method}"][2])} for method in params.fusion.methods}
     return {"scenes": params.fusion.scenes, "common_times": int(totals["times"]),
-            "oracle_pairs": int(totals.get("oracle_pairs", 0)), "gospa_m": pictures,
-            "fused_gospa_vs_better_radar": {key: value / better for key, value in pictures.items()
-                                            if key.startswith("fused_")},
+            "oracle_pairs": int(totals["oracle_pairs"]), "gospa_m": mean_gospa,
+            "track_switches": dict(sorted(switches.items())),
+            "fused_gospa_vs_better_radar": {name: value / better for name, value in mean_gospa.items()
+                                            if name.startswith("fused_")},
             "association": association}

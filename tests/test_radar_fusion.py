@@ -33,6 +33,8 @@ def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_
         assert report["association"][method]["false_pairs"] <= 0.05 * report["oracle_pairs"]
     assert set(report["gospa_m"]) == {"radar_1", "radar_2", "fused_statistical", "fused_bias_robust", "fused_oracle"}
     assert report["fused_gospa_vs_better_radar"]["fused_oracle"] < 1.0
+    assert set(report["track_switches"]) == set(report["gospa_m"])
+    assert all(count >= 0 for count in report["track_switches"].values())
 
 
 def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():
@@ -59,3 +61,17 @@ def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():
 def test_bad_fusion_radars_name_the_entry_key_and_value(radars, named):
     with pytest.raises(ParamError, match=re.escape(named)):
         tf.make_params({"fusion.radars": radars})
+
+
+def test_a_picture_score_counts_gospa_and_a_switch_of_identity():
+    """One aircraft at the origin, held by identity 5 then by identity 6 (say, a pair that the association
+    broke): GOSPA is the localisation error at each time, and the change is one switch."""
+    params = tf.make_params()
+    score = radar_fusion.PictureScore()
+    truth = np.zeros((1, 3))
+    score.add(0, np.array([3]), truth, np.array([5]), np.array([[30.0, 40.0, 0.0]]), params)
+    score.add(1, np.array([3]), truth, np.array([6]), np.array([[0.0, 10.0, 0.0]]), params)
+    assert score.gospa_sum == pytest.approx(50.0 + 10.0)
+    assert score.switches() == 1
+    ids = np.array([[4, 7], [4, -1], [-1, 7]])
+    assert len(set(radar_fusion.fused_identity(ids).tolist())) == 3
