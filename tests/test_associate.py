@@ -181,6 +181,8 @@ def first_confirmed(values: np.ndarray, status: list[str], value) -> np.ndarray:
      "column 'latitude_deg' has 1 missing values"),
     ("an unknown radar id", "tracks1", "radar_id", lambda v: np.full(len(v), 9), "has radar 9 (row 0)"),
     ("a NaN covariance", "tracks1", "covariance_yy_m2", "nan", "column 'covariance_yy_m2' must be finite: row 3"),
+    ("no covariance (a network's tracks)", "tracks2", "covariance_xx_m2", lambda v: np.array([None] * len(v)),
+     "column 'covariance_xx_m2' is missing in"),
 ])
 def test_bad_input_is_named_exits_2_and_writes_nothing(users, models, tmp_path, caplog, case, which, column, change,
                                                         named):
