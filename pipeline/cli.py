@@ -13,6 +13,7 @@ from pipeline.io import InputError
 from pipeline.params import ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
+from pipeline.track_association import METHODS as ASSOCIATION_METHODS
 from pipeline.tracker.registry import CLASSICAL, METHODS, TRACKERS, UnknownMethod
 from pipeline.tuning import TuningError
 
@@ -76,6 +77,11 @@ def _train_lstm_update(args: argparse.Namespace) -> None:
                           Path(args.reports))
 
 
+def _fusion(args: argparse.Namespace) -> None:
+    from pipeline.fusion_stage import run_fusion
+    run_fusion(load_params(args.params), Path(args.models), Path(args.reports))
+
+
 def _compare(args: argparse.Namespace) -> None:
     from pipeline.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
@@ -103,6 +109,12 @@ def _track(args: argparse.Namespace) -> None:
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
               args.date, args.method, args.window, Path(args.models),
               Path(args.out))
+
+
+def _associate(args: argparse.Namespace) -> None:
+    from pipeline.associate_command import run_associate
+    run_associate(load_params(args.params), [Path(p) for p in args.tracks], [Path(p) for p in args.radar],
+                  args.method, Path(args.models), Path(args.pairs), Path(args.fused))
 
 
 def _asterix_export(args: argparse.Namespace) -> None:
@@ -170,6 +182,9 @@ COMMANDS = {
                           "python -m pipeline train-lstm-update --simulated data/simulated --windows data/windows "
                           "--models models --reports reports",
                           ["params", "simulated", "windows", "models", "reports"]),
+    "fusion": (_fusion, "Two radars of params fusion: the multi-target scenes seen by both, each tracked alone, their "
+               "tracks associated by every method and fused; GOSPA of each picture (reports/fusion.json).",
+               "python -m pipeline fusion --models models --reports reports", ["params", "models", "reports"]),
     "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
                 "against the tuned Kalman filters on the hold-out.",
                 "python -m pipeline compare --windows data/windows --models models --reports reports",
@@ -192,6 +207,13 @@ COMMANDS = {
               "--radar data/simulated/test/radar.parquet --method via --window 4000 --out tracks.parquet\n"
               "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --out tracks.parquet",
               ["params", "recording", "models"]),
+    "associate": (_associate, "Associate two users' track tables (what `track` writes, classical methods: they give "
+                  "covariances) at common times and fuse the pairs by covariance intersection; writes the pairs "
+                  "and the fused air picture (Parquet).",
+                  "python -m pipeline associate --tracks north.parquet south.parquet "
+                  "--radar north_radar.parquet south_radar.parquet --method bias_robust "
+                  "--pairs pairs.parquet --fused fused.parquet",
+                  ["params", "association", "models"]),
     "asterix-export": (_asterix_export, "Write one simulated scenario as an ASTERIX CAT034 + CAT048 recording.",
                        "python -m pipeline asterix-export --plots data/simulated/test/plots.parquet "
                        "--radar data/simulated/test/radar.parquet --scenario 0 --out scenario_0.ast",
@@ -231,6 +253,17 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--window", type=float, default=4000.0,
                              help="association window in metres (default: %(default)s)")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
+    elif option == "association":
+        command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),
+                             help="the two users' track tables (Parquet, the schema `track` writes)")
+        command.add_argument("--radar", nargs=2, required=True, metavar=("FIRST", "SECOND"),
+                             help="each table's radar description (Parquet, as for `track`: radar_id, latitude_deg, "
+                                  "longitude_deg, height_m), in the same order")
+        command.add_argument("--method", default="statistical", choices=ASSOCIATION_METHODS,
+                             help="association method (default: %(default)s); network loads "
+                                  "<models>/association_net.pt (dvc repro train_association)")
+        command.add_argument("--pairs", required=True, help="output Parquet: the pairs at each common time")
+        command.add_argument("--fused", required=True, help="output Parquet: the fused air picture at each common time")
     elif option == "export":
         command.add_argument("--plots", required=True, help="simulated plots Parquet")
         command.add_argument("--radar", required=True, help="radar description Parquet")

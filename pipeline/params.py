@@ -10,13 +10,15 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 import yaml
 
+from pipeline.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.track_fusion import CRITERIA as FUSION_CRITERIA
 from pipeline.tracker import registry
 
 # New strategies go at the end: a route's random stream is seeded by its strategy's index here.
@@ -423,6 +425,42 @@ class LSTMUpdate:
 
 
 @dataclass(frozen=True)
+class Associate:
+    """`python -m pipeline associate` on two track tables (params.yaml `associate`; pipeline/common_time_states.py)."""
+
+    step_s: float                   # common times this far apart over the tables' overlap
+    max_age_s: float                # a track's last update no older than this at a common time
+    velocity_baseline_s: float      # velocity from the last update and the latest one at least this much earlier
+    acceleration_std_mps2: float    # white-noise acceleration of the extrapolation to the common time
+    fusion_criterion: str           # covariance intersection minimises this (track_fusion.CRITERIA)
+
+
+@dataclass(frozen=True)
+class FusionRadar:
+    """One radar of the fusion stage: what it is (`radar`, params' `radar` with the entry's keys changed), its
+    registration bias (range m, azimuth deg, site east and north m: the tracker believes the radar that much
+    away from where it is) and the seed of its detections, noise and clutter (in place of simulate.seed)."""
+
+    radar: Radar
+    bias_range_m: float
+    bias_azimuth_deg: float
+    bias_east_m: float
+    bias_north_m: float
+    seed: int
+
+
+@dataclass(frozen=True)
+class Fusion:
+    """The fusion stage (params.yaml `fusion`; pipeline/radar_fusion.py)."""
+
+    scenes: int
+    tracker: str
+    window_m: float
+    methods: tuple[str, ...]
+    radars: tuple[FusionRadar, FusionRadar]
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -439,6 +477,8 @@ class Params:
     lstm_update: LSTMUpdate
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
+    associate: Associate
+    fusion: Fusion
 
 
 class _Section(Mapping):
@@ -1173,6 +1213,61 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
         range_shares=tuple(float(v) for v in shares))
 
 
+def _associate(tree: Mapping[str, Any]) -> Associate:
+    """Every knob checked; the fusion criterion one of track_fusion's."""
+    p = "associate"
+    max_age = _positive(tree, "max_age_s", p)
+    criterion = _text(tree, "fusion_criterion", p)
+    if criterion not in FUSION_CRITERIA:
+        raise ParamError(f"{p}.fusion_criterion = {criterion!r}: must be one of {FUSION_CRITERIA}")
+    return Associate(step_s=_positive(tree, "step_s", p), max_age_s=max_age,
+                     velocity_baseline_s=_positive(tree, "velocity_baseline_s", p),
+                     acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion)
+
+
+FUSION_BIAS_KEYS = ("bias_range_m", "bias_azimuth_deg", "bias_east_m", "bias_north_m")
+
+
+def _fusion_radar(entry: Any, index: int, radar_tree: Mapping[str, Any]) -> FusionRadar:
+    """An entry of fusion.radars: params' radar with the entry's radar keys changed (checked as `radar` is), its
+    biases and seed."""
+    p = f"fusion.radars[{index}]"
+    if not isinstance(entry, Mapping):
+        raise ParamError(f"{p} = {entry!r}: must be a mapping of radar keys, biases and seed")
+    changes = {key: entry[key] for key in entry if key not in (*FUSION_BIAS_KEYS, "seed")}
+    radar_keys = [field.name for field in fields(Radar)]
+    unknown = sorted(set(changes) - set(radar_keys))
+    if unknown:
+        raise ParamError(f"{p}.{unknown[0]}: unknown key (a radar key, one of {FUSION_BIAS_KEYS} or seed)")
+    # only the radar's known keys are taken from `radar`: a misspelt one there stays unread, hence an error
+    base = {key: radar_tree[key] for key in radar_keys if key in radar_tree}
+    try:
+        radar = _radar({**base, **changes})
+    except ParamError as error:
+        raise ParamError(f"{p}: {error}") from None
+    return FusionRadar(radar, *(_number(entry, key, p) for key in FUSION_BIAS_KEYS), _integer(entry, "seed", p))
+
+
+def _fusion(tree: Mapping[str, Any], radar_tree: Mapping[str, Any]) -> Fusion:
+    """Two radars of distinct ids (track-to-track association pairs two radars' tracks); registered methods."""
+    p = "fusion"
+    entries = _get(tree, "radars", p)
+    if not isinstance(entries, list) or len(entries) != 2:
+        raise ParamError(f"{p}.radars = {entries!r}: must list two radars (association pairs two radars' tracks)")
+    radars = tuple(_fusion_radar(entry, index, radar_tree) for index, entry in enumerate(entries))
+    if radars[0].radar.radar_id == radars[1].radar.radar_id:
+        raise ParamError(f"{p}.radars: both radars have id {radars[0].radar.radar_id} (sac * 256 + sic): give the "
+                         "second its own sic")
+    tracker = _text(tree, "tracker", p)
+    if tracker not in registry.TRACKERS:
+        raise ParamError(f"{p}.tracker = {tracker!r}: must be one of {registry.TRACKERS}")
+    methods = _get(tree, "methods", p)
+    if not isinstance(methods, list) or not methods or not set(methods) <= set(ASSOCIATION_METHODS):
+        raise ParamError(f"{p}.methods = {methods!r}: must list some of {ASSOCIATION_METHODS}")
+    return Fusion(scenes=_integer(tree, "scenes", p, 1), tracker=tracker, window_m=_positive(tree, "window_m", p),
+                  methods=tuple(methods), radars=radars)
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -1203,6 +1298,8 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         lstm_update=_lstm_update(_get(tree, "lstm_update", "params"), routes.splits, windows),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
+        associate=_associate(_get(tree, "associate", "params")),
+        fusion=_fusion(_get(tree, "fusion", "params"), _get(tree, "radar", "params")),
     )
     unknown = tree.unread()
     if unknown:

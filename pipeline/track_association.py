@@ -31,6 +31,7 @@ from scipy.stats import chi2
 from pipeline.io import InputError
 
 STATE_SIZES = (4, 6)   # [e, n, ve, vn] or [e, n, u, ve, vn, vu]
+METHODS = ("statistical", "double_threshold", "bias_robust", "network")  # every way to associate two radars' tracks
 FORBIDDEN = 1e12       # assignment cost of a gated-out pair (never chosen while a gated pair is left)
 
 
@@ -49,7 +50,7 @@ def check_tracks(states: np.ndarray, covariances: np.ndarray, label: str) -> tup
         raise TrackInputError(f"{label}: covariances must be {(n, d, d)} for states {states.shape}, "
                               f"got {covariances.shape}")
     for name, values in (("state", states), ("covariance", covariances)):
-        bad = ~np.isfinite(values.reshape(n, -1)).all(axis=1)
+        bad = ~np.isfinite(values).all(axis=tuple(range(1, values.ndim)))
         if bad.any():
             raise TrackInputError(f"{label}: {int(bad.sum())} track(s) with a NaN or infinite {name} "
                                   f"(first: track {int(np.argmax(bad))})")

@@ -35,24 +35,31 @@ from pipeline.tracker.updates import positions
 
 log = logging.getLogger("pipeline")
 
+POSITION_COLUMNS = tuple((name, pa.float64()) for name in ("x_ecef_m", "y_ecef_m", "z_ecef_m", "latitude_deg",
+                                                             "longitude_deg", "altitude_m"))  # a track's position
 TRACK_SCHEMA = io.schema(
     ("radar_id", pa.int32()),
     ("scenario_id", pa.int32(), True),
     ("track_id", pa.int64()),
     ("time_unix_s", pa.float64()),
     ("plot_id", pa.int64()),
-    ("x_ecef_m", pa.float64()),
-    ("y_ecef_m", pa.float64()),
-    ("z_ecef_m", pa.float64()),
-    ("latitude_deg", pa.float64()),
-    ("longitude_deg", pa.float64()),
-    ("altitude_m", pa.float64()),
+    *POSITION_COLUMNS,
     ("range_m", pa.float64()),
     ("weight", pa.float64()),
     ("status", pa.string()),
     ("association", pa.string()),
     ("association_error", pa.float64(), True),
+    *((name, pa.float64(), True) for name in ("covariance_xx_m2", "covariance_xy_m2", "covariance_xz_m2",
+                                              "covariance_yy_m2", "covariance_yz_m2", "covariance_zz_m2")),
 )
+COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-6:]  # the position's ECEF covariance, upper triangle; null when the
+COVARIANCE_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # estimator gives none (the networks)
+
+
+def covariance_columns(covariances: np.ndarray) -> dict[str, pa.Array]:
+    """COVARIANCE_COLUMNS of (U, 3, 3) ECEF position covariances, m^2; null where NaN (an estimator giving none)."""
+    return {name: pa.array(covariances[:, i, j], mask=np.isnan(covariances[:, i, j]))
+            for name, (i, j) in zip(COVARIANCE_COLUMNS, COVARIANCE_ENTRIES)}
 
 
 def recording_tracker_params(tracker: TrackerParams, radars: Mapping[int, Radar]) -> TrackerParams:
@@ -86,6 +93,7 @@ def track_recording(plots: Plots, method: str, window_m: float, params: Params, 
             "range_m": np.linalg.norm(states - site, axis=1), "weight": updates["weight"],
             "status": [management.status(w) for w in updates["weight"]],
             "association": updates["association"].astype(str), "association_error": updates["association_error"],
+            **covariance_columns(updates["position_covariance"]),
         }, schema=TRACK_SCHEMA))
     return pa.concat_tables(parts) if parts else TRACK_SCHEMA.empty_table()
 

@@ -79,3 +79,11 @@ def test_mismatched_shapes_are_named_errors():
         associate_statistical(x1[-1], p1[-1], x2[-1], p2[-1, :, :3, :3], GATE)
     with pytest.raises(TrackInputError, match="hits = 5 must be in"):
         associate_double_threshold(x1, p1, x2, p2, GATE, hits=5)
+
+
+def test_a_radar_without_tracks_gives_no_pairs():
+    """A common time at which one radar has no track (`associate` meets them at a table's edges): no pair."""
+    states, covariances = np.zeros((0, 4)), np.zeros((0, 4, 4))
+    one, one_covariance = np.zeros((1, 4)), np.eye(4)[None]
+    assert associate_statistical(one, one_covariance, states, covariances, 0.999).shape == (0, 2)
+    assert associate_statistical(states, covariances, one, one_covariance, 0.999).shape == (0, 2)

@@ -1,0 +1,77 @@
+"""The fusion stage's library (`radar_fusion`): the multi-target scenes seen by two radars, tracked per radar,
+associated and fused; and the params of its radars."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from pipeline import geodesy, radar_fusion
+from pipeline.params import ParamError
+from tests import tracker_fixtures as tf
+
+SMALL = {"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1,
+         "fusion.methods": ["statistical", "bias_robust"]}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    params = tf.make_params(SMALL)
+    models = tf.write_tuned_filters(tmp_path_factory.mktemp("models"), params)
+    return radar_fusion.fusion_report(params, models, None)
+
+
+def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_the_better_radar(report):
+    """One scene of 8 aircraft, two radars 100 km apart, the second biased: the statistical and the bias-robust
+    methods find nearly all the oracle's pairs and few false ones; fusing the oracle's pairs gives a smaller GOSPA
+    than the better radar alone."""
+    assert report["common_times"] > 10 and report["oracle_pairs"] > 50
+    for method in ("statistical", "bias_robust"):
+        assert report["association"][method]["accuracy"] > 0.9
+        assert report["association"][method]["false_pairs"] <= 0.05 * report["oracle_pairs"]
+    assert set(report["gospa_m"]) == {"radar_1", "radar_2", "fused_statistical", "fused_bias_robust", "fused_oracle"}
+    assert report["fused_gospa_vs_better_radar"]["fused_oracle"] < 1.0
+    assert set(report["track_switches"]) == set(report["gospa_m"])
+    assert all(count >= 0 for count in report["track_switches"].values())
+
+
+def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():
+    params = tf.make_params()
+    second = params.fusion.radars[1]
+    believed = radar_fusion.believed_radar(second)
+    offset = geodesy.radar_site_ecef(believed) - geodesy.radar_site_ecef(second.radar)
+    east_north = geodesy.enu_rotation(second.radar.latitude_deg, second.radar.longitude_deg)[:2] @ offset
+    np.testing.assert_allclose(east_north, [second.bias_east_m, second.bias_north_m], atol=0.5)
+
+
+@pytest.mark.parametrize("radars, named", [
+    ([{"bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0, "bias_north_m": 0.0, "seed": 1}],
+     "fusion.radars = [{"),
+    ([{"bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0, "bias_north_m": 0.0, "seed": 1}] * 2,
+     "fusion.radars: both radars have id 1"),
+    ([{"bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0, "bias_north_m": 0.0, "seed": 1},
+      {"sic": 2, "sigma_rnage_m": 3.0, "bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0,
+       "bias_north_m": 0.0, "seed": 2}], "fusion.radars[1].sigma_rnage_m: unknown key"),
+    ([{"bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0, "bias_north_m": 0.0, "seed": 1},
+      {"sic": 2, "latitude_deg": 95.0, "bias_range_m": 0.0, "bias_azimuth_deg": 0.0, "bias_east_m": 0.0,
+       "bias_north_m": 0.0, "seed": 2}], "fusion.radars[1]: radar.latitude_deg = 95.0"),
+])
+def test_bad_fusion_radars_name_the_entry_key_and_value(radars, named):
+    with pytest.raises(ParamError, match=re.escape(named)):
+        tf.make_params({"fusion.radars": radars})
+
+
+def test_a_picture_score_counts_gospa_and_a_switch_of_identity():
+    """One aircraft at the origin, held by identity 5 then by identity 6 (say, a pair that the association
+    broke): GOSPA is the localisation error at each time, and the change is one switch."""
+    params = tf.make_params()
+    score = radar_fusion.PictureScore()
+    truth = np.zeros((1, 3))
+    score.add(0, np.array([3]), truth, np.array([5]), np.array([[30.0, 40.0, 0.0]]), params)
+    score.add(1, np.array([3]), truth, np.array([6]), np.array([[0.0, 10.0, 0.0]]), params)
+    assert score.gospa_sum == pytest.approx(50.0 + 10.0)
+    assert score.switches() == 1
+    ids = np.array([[4, 7], [4, -1], [-1, 7]])
+    assert len(set(radar_fusion.fused_identity(ids).tolist())) == 3
