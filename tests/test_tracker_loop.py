@@ -19,6 +19,7 @@ from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.run import Composition, track
+from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
 ORIGIN = np.array([2.9e6, 1.3e6, 5.5e6])  # ECEF metres, near the default radar
@@ -177,3 +178,31 @@ def test_the_oracle_joins_each_plot_to_its_own_targets_track():
 def test_the_oracle_needs_the_truth():
     with pytest.raises(io.InputError, match="target_id"):
         track(plots([0, 6], [0, 100]), composition(assigner=TrueAssociation()))
+
+
+@pytest.mark.parametrize("distance_m", [20000.0, 7000.0, 45000.0])
+def test_the_prefilter_grid_finds_exactly_the_tracks_a_scan_of_all_finds(distance_m):
+    """Tracks started, moved and deleted at random over 60 km around ORIGIN (cubes of 20 km, so
+    many tracks sit near cube faces): after every change, `near` gives, for every plot, the same
+    sorted slots as testing the distance of every live track, for distances below, at and above
+    the cube edge."""
+    rng = np.random.default_rng(7)
+    count = 400
+    positions = ORIGIN + rng.uniform(-60000.0, 60000.0, (count, 3))
+    positions[:40] = np.round(positions[:40] / 20000.0) * 20000.0  # exactly on cube faces
+    features = np.column_stack([tf.T0 + np.arange(count, dtype=float), positions, np.full(count, 1e5)])
+    live = LiveTracks(tf.plots_of(features, np.arange(count), tf.make_params().radar), RULE, capacity=4,
+                      cell_m=20000.0)
+    for row in range(count):
+        if row % 3 == 2 and len(live):  # move a live track onto another plot's position
+            slot = int(rng.choice(np.flatnonzero(live.alive)))
+            live.associate(slot, row, positions[rng.integers(count)])
+        else:
+            live.start(row)
+        if row % 50 == 49:  # tracks silent for more than a silence period die
+            live.manage(tf.T0 + row + RULE.silence_s * rng.uniform(0.2, 1.0))
+        for probe in rng.choice(row + 1, 5):
+            offset = live.position - positions[probe]
+            brute_force = np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < distance_m ** 2)
+            assert np.array_equal(live.near(int(probe), distance_m), brute_force)
+    assert len(live) < count  # some tracks were deleted

@@ -54,7 +54,7 @@ class Composition:
 def track(plots: Plots, tracker: Composition) -> dict[str, np.ndarray]:
     """Track `plots` (time order, one scenario) with `tracker`: one row per track update, a track's
     start counting as its first (`pipeline.tracker.updates`)."""
-    live = LiveTracks(plots, tracker.management)
+    live = LiveTracks(plots, tracker.management, cell_m=tracker.prefilter_m)
     estimator = tracker.estimator
     updates = Updates(estimator.gives_covariance)
     time = plots.time
