@@ -29,7 +29,9 @@ scan, its next plot exactly `silence_s` = two scans later).
 
 from __future__ import annotations
 
+import functools
 import heapq
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +52,13 @@ class Track:
     track_id: int
     rows: list[int] = field(default_factory=list)
     memory: object = None
+
+
+@functools.cache
+def _neighbours(reach: int) -> tuple[int, ...]:
+    """Key steps from a cube to the cubes at most `reach` cubes from it along each axis."""
+    steps = range(-reach, reach + 1)
+    return tuple((dx * _AXIS + dy) * _AXIS + dz for dx in steps for dy in steps for dz in steps)
 
 
 class LiveTracks:
@@ -92,7 +101,7 @@ class LiveTracks:
 
     def _key(self, position: np.ndarray) -> int:
         """The key of the cube holding `position` (3,) m."""
-        x, y, z = (np.floor(position / self.cell_m).astype(np.int64) + _AXIS // 2).tolist()
+        x, y, z = (math.floor(value / self.cell_m) + _AXIS // 2 for value in position.tolist())
         return (x * _AXIS + y) * _AXIS + z
 
     def _place(self, slot: int) -> None:
@@ -130,10 +139,8 @@ class LiveTracks:
         if not (2 * reach + 1) ** 3 < len(cells):  # NaN (infinite distance and cube) included
             slots = list(self._cell_of)
         else:
-            reach, centre = int(reach), self._key(self.plots.position[row])
-            slots = [slot for dx in range(-reach, reach + 1) for dy in range(-reach, reach + 1)
-                     for dz in range(-reach, reach + 1)
-                     for slot in cells.get(centre + (dx * _AXIS + dy) * _AXIS + dz, ())]
+            centre = self._key(self.plots.position[row])
+            slots = [slot for step in _neighbours(int(reach)) for slot in cells.get(centre + step, ())]
         if not slots:
             return np.empty(0, dtype=np.int64)
         slots = np.sort(np.array(slots, dtype=np.int64))
