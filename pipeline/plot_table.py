@@ -118,6 +118,15 @@ class Plots:
             yield int(scenario_id), self.take(np.flatnonzero(self.scenario_id == scenario_id))
 
 
+def joined(parts: list[Plots]) -> Plots:
+    """The plots of `parts` (parts of one recording) one after the other; truth known if known in
+    every part; the first part's `skipped` (each part carries the recording's)."""
+    columns = ("plot_id", "radar_id", "scenario_id", "time", "position", "range_m", "covariance", "target_id")
+    return Plots(*(np.concatenate([getattr(part, name) for part in parts]) for name in columns),
+                 all(part.has_truth for part in parts), {k: v for part in parts for k, v in part.radars.items()},
+                 parts[0].skipped)
+
+
 def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
     """Each described radar (RADAR_INPUT_SCHEMA rows, optionally with RADAR_ERROR_COLUMNS) as
     params' `radar` at that site, with the row's scan period and error figures where it gives them."""

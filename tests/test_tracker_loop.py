@@ -18,7 +18,9 @@ from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, True
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
 from pipeline.tracker.management import ThesisWeights
-from pipeline.tracker.run import Composition, track
+from pipeline.tracker import registry
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import Composition, track, track_chunks
 from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
@@ -161,6 +163,15 @@ def test_global_nearest_neighbour_scans_follow_each_radars_rotation():
     np.testing.assert_array_equal(GlobalNearestPerScan().batches(recording), [0, 3, 5, 6])
 
 
+def test_global_nearest_neighbour_counts_a_later_parts_scans_from_the_radars_first_plot():
+    """A recording read in parts: the second part (from 5.9 s) is cut at 6 s and 12 s, counted from
+    the first part's first plot, not at 11.9 s from its own."""
+    recording = plots([0.0, 2.0, 5.9, 6.1, 11.0, 12.5], [0, 1, 2, 3, 4, 5])
+    assigner = GlobalNearestPerScan()
+    assigner.batches(recording.take(np.arange(2)))
+    np.testing.assert_array_equal(assigner.batches(recording.take(np.arange(2, 6))), [0, 1, 3, 4])
+
+
 def test_the_oracle_joins_each_plot_to_its_own_targets_track():
     """Two targets crossing (their plots swap sides) among false plots, with no gating and an infinite
     pre-filter: each target's plots form its own track, whatever the distances; each false plot starts
@@ -206,3 +217,38 @@ def test_the_prefilter_grid_finds_exactly_the_tracks_a_scan_of_all_finds(distanc
             brute_force = np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < distance_m ** 2)
             assert np.array_equal(live.near(int(probe), distance_m), brute_force)
     assert len(live) < count  # some tracks were deleted
+
+
+def _busy_recording():
+    """Eight straight flights (some within 3 km of each other) and clutter, 40 scans, with truth."""
+    radar = tf.make_params().radar
+    rng = np.random.default_rng(3)
+    flights = [(tf.straight_features(radar, (20000.0 * k, 60000.0 + 1500.0 * (k % 2), 8000.0),
+                                     (150.0, -100.0 + 25.0 * k, 0.0), 40, t_offset=0.3 * k), np.full(40, k))
+               for k in range(8)]
+    clutter = tf.clutter_features(radar, 40, 30.0, rng, half_width_m=120000.0)
+    features, targets = tf.merge(*flights, (clutter, np.full(len(clutter), NO_TARGET)))
+    return tf.plots_of(features, np.arange(len(features)), radar, targets)
+
+
+@pytest.mark.parametrize("method", ["imm", "kalman_cv_gnn", "oracle"])
+def test_a_recording_tracked_in_chunks_gives_the_updates_of_tracking_it_whole(method):
+    """Chunks of 1, 7 and 100 plots (cutting scans and live tracks): the joined update tables equal
+    the whole recording's, bit for bit, for nearest per plot, global nearest per scan and the oracle."""
+    recording = _busy_recording()
+    params = tf.make_params()
+    models = Models(filters=tf.untuned_filters(params))
+
+    def composed():
+        return registry.compose(method, models, params.tracker, 4000.0, [params.tracker.seed])
+
+    whole = track(recording, composed())
+    assert len(set(whole["track_id"].tolist())) < len(recording)  # associations happened
+    for size in (1, 7, 100):
+        chunks = [recording.take(np.arange(start, min(start + size, len(recording))))
+                  for start in range(0, len(recording), size)]
+        tables = list(track_chunks(chunks, composed()))
+        assert len(tables) == len(chunks)
+        for key, column in whole.items():
+            joined = np.concatenate([table[key] for table in tables])
+            assert joined.dtype == column.dtype and joined.tobytes() == column.tobytes(), (size, key)

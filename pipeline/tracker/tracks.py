@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline import plot_table
 from pipeline.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
 
@@ -146,6 +147,19 @@ class LiveTracks:
         slots = np.sort(np.array(slots, dtype=np.int64))
         offset = self.position[slots] - self.plots.position[row]
         return slots[np.einsum("ij,ij->i", offset, offset) < distance_m ** 2]
+
+    def carry(self, plots: Plots) -> int:
+        """Move on to the next part of a recording read a part at a time: the plot table becomes
+        the live tracks' plots (in their order) followed by `plots`, and every live track's rows
+        are renumbered into it. Returns the row of `plots`' first plot. Raises ValueError if a
+        live track holds no plot (it always holds its first)."""
+        live = [track for track in self.tracks if track is not None]
+        kept = np.unique(np.concatenate([np.asarray(track.rows, dtype=np.int64) for track in live])) if live \
+            else np.empty(0, dtype=np.int64)
+        for track in live:
+            track.rows = np.searchsorted(kept, track.rows).tolist()
+        self.plots = plot_table.joined([self.plots.take(kept), plots])
+        return len(kept)
 
     def start(self, row: int) -> int:
         """A new track from plot `row`; its position is the plot's. Returns its slot."""
