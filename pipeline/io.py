@@ -91,6 +91,65 @@ def write_parquet(table: pa.Table, destination: str | Path) -> None:
         pq.write_table(table, temporary, compression="zstd", write_statistics=True)
 
 
+ROW_GROUP_ROWS = 1024 * 1024  # pyarrow's default row group length, which `write_parquet` leaves in place
+
+
+class ParquetChunks:
+    """Write a table a part at a time with the bytes `write_parquet` gives the whole, where the
+    whole is `pa.concat_tables(chunks)` and each chunk arrives in parts (`add`). Parquet's bytes
+    follow the Arrow chunks within a row group, so each row group is written as the whole would
+    hold it: one Arrow chunk per chunk (its rows in that group). Holds at most one row group's
+    rows (`row_group_rows`) and the part being added."""
+
+    def __init__(self, writer: pq.ParquetWriter, schema: pa.Schema, row_group_rows: int = ROW_GROUP_ROWS) -> None:
+        self.writer, self.schema, self.row_group_rows = writer, schema, row_group_rows
+        self._chunks: list[list[pa.Table]] = []  # the parts of each chunk not written yet
+        self._rows = 0
+        self.written = 0
+
+    def add(self, part: pa.Table, new_chunk: bool) -> None:
+        """Add `part` (rows in `schema`) to the current chunk, or as the first part of a new one."""
+        if new_chunk or not self._chunks:
+            self._chunks.append([])
+        self._chunks[-1].append(part)
+        self._rows += part.num_rows
+        while self._rows >= self.row_group_rows:
+            self._write(self.row_group_rows)
+
+    def _write(self, rows: int) -> None:
+        """Write the first `rows` rows held as one row group."""
+        whole = [pa.concat_tables(parts).combine_chunks() for parts in self._chunks]
+        group, left, rest = [], rows, []
+        for table in whole:
+            if left:
+                group.append(table.slice(0, left))
+                if table.num_rows > left:
+                    rest.append([table.slice(left)])
+                left -= min(left, table.num_rows)
+            else:
+                rest.append([table])
+        self.writer.write_table(pa.concat_tables(group), row_group_size=rows)
+        self._chunks, self._rows, self.written = rest, self._rows - rows, self.written + rows
+
+    def close(self) -> None:
+        """Write what is held (an empty table if nothing was ever added, as `write_parquet` does)."""
+        if self._rows:
+            self._write(self._rows)
+        elif not self.written:
+            self.writer.write_table(self.schema.empty_table())
+
+
+@contextmanager
+def parquet_chunks(destination: str | Path, schema: pa.Schema) -> Iterator[ParquetChunks]:
+    """A `ParquetChunks` writing atomically to `destination` (as `write_parquet`): the file appears,
+    whole, only if the block succeeds; nothing is left on an error."""
+    with atomic_path(destination) as temporary:
+        with pq.ParquetWriter(temporary, schema, compression="zstd", write_statistics=True) as writer:
+            chunks = ParquetChunks(writer, schema)
+            yield chunks
+            chunks.close()
+
+
 def _finite(data: Any) -> Any:
     """NaN and infinities become null: JSON has no NaN, and DVC and browsers reject it."""
     if isinstance(data, float) and not np.isfinite(data):

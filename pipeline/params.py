@@ -370,6 +370,7 @@ class Params:
     kalman_net: KalmanNet
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
+    chunk_plots: int    # compute.chunk_plots: plots `track` holds placed at a time; results do not depend on it
 
 
 class _Section(Mapping):
@@ -1043,6 +1044,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
+        chunk_plots=_integer(_get(tree, "compute", "params"), "chunk_plots", "compute", 1),
     )
     unknown = tree.unread()
     if unknown:
