@@ -20,6 +20,11 @@ every packet twice, and a twin associated with its own plot at distance 0 would 
 half the scans. Plots out of time order within a scenario are sorted (stable) with a warning
 giving how many plots moved and the largest backward step: a recording merged from several files
 is often slightly out of order, and the tracker needs time order.
+
+`recording` does all of that but the placing, and keeps the checked input columns (a
+`Recording`); the plots are placed from it a part at a time (`Recording.plots`,
+`Recording.scenarios`), so that `track` holds a long recording in a fraction of the memory of
+its plot table. `plot_table` places every plot at once.
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ assigner's choice. Plot by plot in time order, management again, then the chosen
 update (from the same prediction) or, for a plot without one, a new track.
 
 The loop knows no method: no name, no type test. It works in ECEF; each plot brings its
-radar's measurement covariance in the plot table, so plots of several radars mix.
+radar's measurement covariance in the plot table, so plots of several radars mix. A long
+recording can be given a part at a time (`track_chunks`), with the same updates as whole.
 """
 
 from __future__ import annotations
