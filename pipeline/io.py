@@ -211,3 +211,84 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
                                  f"(first at row {int(np.argmax(nan))})")
         columns[field.name] = column
     return pa.Table.from_arrays(list(columns.values()), schema=schema)
+
+
+READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
+
+
+def read_numeric_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] = ()) -> pa.Table:
+    """`read_parquet` (the same checks, in the same order, with the same errors) for a schema of
+    integer and float columns, in a fraction of its memory: the columns are numpy arrays filled
+    READ_BATCH_ROWS rows at a time and handed to Arrow without a copy. `pq.read_table` peaks at
+    two to three times the data and its memory pool keeps most of that; this holds the data once
+    (`track` reads a 24-hour recording with it). Each column comes as one chunk."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        file = pq.ParquetFile(path)
+        present = [field for field in schema if field.name in file.schema_arrow.names]
+        columns = {field.name: _NumericColumn(field, file.metadata.num_rows) for field in present}
+        if present:
+            for batch in file.iter_batches(batch_size=READ_BATCH_ROWS, columns=list(columns)):
+                for name, column in columns.items():
+                    column.add(batch.column(name))
+    except (pa.ArrowInvalid, OSError) as error:
+        raise InputError(f"{path}: not a readable Parquet file ({error})") from None
+    arrays = []
+    for field in schema:
+        if field.name in columns:
+            arrays.append(columns[field.name].array(path))
+        elif field.name in optional:
+            arrays.append(pa.nulls(file.metadata.num_rows, field.type))
+        else:
+            raise InputError(f"{path}: column '{field.name}' is missing (expected {field.type})")
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+class _NumericColumn:
+    """One column of `read_numeric_parquet`, filled batch by batch, with what its checks found."""
+
+    def __init__(self, field: pa.Field, rows: int) -> None:
+        if not (pa.types.is_integer(field.type) or pa.types.is_floating(field.type)):
+            raise TypeError(f"read_numeric_parquet reads integer and float columns, not {field}")
+        self.field = field
+        self.values = np.empty(rows, dtype=field.type.to_pandas_dtype())
+        self.valid = np.ones(rows, dtype=bool) if field.nullable else None
+        self.filled = self.nulls = self.nan = 0
+        self.first_nan: int | None = None
+        self.wrong_type: pa.DataType | None = None
+
+    def add(self, column: pa.Array) -> None:
+        """The column's next batch."""
+        start, self.filled = self.filled, self.filled + len(column)
+        if self.wrong_type is not None:
+            return
+        if not column.type.equals(self.field.type):
+            try:
+                column = column.cast(self.field.type)
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+                self.wrong_type = column.type
+                return
+        self.nulls += column.null_count
+        values = column.fill_null(0).to_numpy(zero_copy_only=False) if column.null_count else column.to_numpy()
+        self.values[start:self.filled] = values
+        if self.valid is not None and column.null_count:
+            self.valid[start:self.filled] = column.is_valid().to_numpy(zero_copy_only=False)
+        if pa.types.is_floating(self.field.type) and not self.field.nullable:
+            nan = np.isnan(values)
+            if nan.any():
+                self.first_nan = start + int(np.argmax(nan)) if self.first_nan is None else self.first_nan
+                self.nan += int(nan.sum())
+
+    def array(self, path: Path) -> pa.Array:
+        """The column as one Arrow array, or the error `read_parquet` gives for it."""
+        name, kind = self.field.name, self.field.type
+        if self.wrong_type is not None:
+            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind}")
+        if not self.field.nullable and self.nulls:
+            raise InputError(f"{path}: column '{name}' has {self.nulls} missing values")
+        if self.nan:
+            raise InputError(f"{path}: column '{name}' is NaN in {self.nan} rows (first at row {self.first_nan})")
+        mask = None if self.valid is None or self.valid.all() else ~self.valid
+        return pa.array(self.values, type=kind, mask=mask)

@@ -236,13 +236,10 @@ def _first_of_twins(plots: pa.Table) -> np.ndarray:
     """Rows (ascending) of the plots that are not twins of an earlier row: the same radar, scenario,
     time, range, azimuth and altitude (the plot id may differ, as when each of two redundant feeds'
     copies got its own)."""
-    keys = np.column_stack([plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
-                            plots.column("radar_id").to_numpy(),
-                            *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg",
-                                                                           "altitude_m"))])
-    order = np.lexsort(keys.T[::-1])  # stable: of equal rows, the earliest comes first
-    ordered = keys[order]
-    return np.sort(order[np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]])
+    keys = [plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(), plots.column("radar_id").to_numpy(),
+            *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg", "altitude_m"))]
+    order = np.lexsort(keys[::-1])  # stable: of equal rows, the earliest comes first
+    return np.sort(order[np.r_[True, input_checks.changes(order, keys)]])
 
 
 def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str) -> None:
@@ -264,7 +261,7 @@ def read_parquet_recording(plots_path: Path, radar_path: Path, radar: Radar) -> 
     """A recording from Parquet (the schema `simulate` writes, or a user's with PLOT_INPUT_SCHEMA's
     columns) and their radar description (RADAR_FILE_SCHEMA), each checked (`input_checks`). Errors
     name the file and column."""
-    plots = io.read_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
+    plots = io.read_numeric_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
     input_checks.check_plots(plots, plots_path)
     radars = io.read_parquet(radar_path, RADAR_FILE_SCHEMA, optional=OPTIONAL_RADAR_COLUMNS)
     input_checks.check_radars(radars, radar_path)

@@ -422,3 +422,37 @@ def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_pa
         track_command(tmp_path, filters_only, "imm", plots, radars, {"compute.chunk_plots": 10})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["models", "params.yaml", "recording", "tracks.parquet"]
     assert (tmp_path / "tracks.parquet").read_bytes() == b"earlier"
+
+
+@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "missing"])
+def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(params, tmp_path, monkeypatch,
+                                                                                change):
+    """`io.read_numeric_parquet`, reading 7 rows at a time, against `io.read_parquet` on the same
+    file: the same values (and nulls), or the same error naming the same first row and count (a NaN
+    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, no
+    range column)."""
+    plots, _, _ = two_radar_recording(params, np.random.default_rng(6))
+    if change == "nan":
+        plots = with_values(plots, "range_m", [9, 20], np.nan)
+    elif change == "null":
+        azimuth = plots.column("azimuth_deg").to_numpy()
+        plots = plots.set_column(plots.schema.get_field_index("azimuth_deg"), "azimuth_deg",
+                                 pa.array(azimuth, mask=np.isin(np.arange(len(azimuth)), [3, 15])))
+    elif change == "type":
+        text = plots.column("altitude_m").cast(pa.string()).to_pylist()
+        text[12] = "high"
+        plots = plots.set_column(plots.schema.get_field_index("altitude_m"), "altitude_m", pa.array(text))
+    elif change == "missing":
+        plots = plots.drop_columns(["range_m"])
+    path = tmp_path / "plots.parquet"
+    pq.write_table(plots, path, row_group_size=10)
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    arguments = (path, plot_table.PLOT_INPUT_SCHEMA, plot_table.OPTIONAL_PLOT_COLUMNS)
+    if change == "none":
+        assert io.read_numeric_parquet(*arguments).equals(io.read_parquet(*arguments))
+        return
+    with pytest.raises(io.InputError) as expected:
+        io.read_parquet(*arguments)
+    with pytest.raises(io.InputError) as got:
+        io.read_numeric_parquet(*arguments)
+    assert str(got.value) == str(expected.value)
