@@ -98,37 +98,43 @@ class ParquetChunks:
     """Write a table a part at a time with the bytes `write_parquet` gives the whole, where the
     whole is `pa.concat_tables(chunks)` and each chunk arrives in parts (`add`). Parquet's bytes
     follow the Arrow chunks within a row group, so each row group is written as the whole would
-    hold it: one Arrow chunk per chunk (its rows in that group). Holds at most one row group's
-    rows (`row_group_rows`) and the part being added."""
+    hold it: one Arrow array per chunk (its rows in that group), joined a column at a time (the
+    parts' arrays of a column are let go as it is joined). Holds at most one row group's rows
+    (`row_group_rows`) and the part being added."""
 
     def __init__(self, writer: pq.ParquetWriter, schema: pa.Schema, row_group_rows: int = ROW_GROUP_ROWS) -> None:
         self.writer, self.schema, self.row_group_rows = writer, schema, row_group_rows
-        self._chunks: list[list[pa.Table]] = []  # the parts of each chunk not written yet
+        self._chunks: list[list[list[pa.Array]]] = []  # per chunk not written yet, per column, its arrays
         self._rows = 0
         self.written = 0
 
     def add(self, part: pa.Table, new_chunk: bool) -> None:
         """Add `part` (rows in `schema`) to the current chunk, or as the first part of a new one."""
         if new_chunk or not self._chunks:
-            self._chunks.append([])
-        self._chunks[-1].append(part)
+            self._chunks.append([[] for _ in self.schema])
+        for arrays, column in zip(self._chunks[-1], part.columns):
+            arrays.extend(column.chunks)
         self._rows += part.num_rows
         while self._rows >= self.row_group_rows:
             self._write(self.row_group_rows)
 
     def _write(self, rows: int) -> None:
         """Write the first `rows` rows held as one row group."""
-        whole = [pa.concat_tables(parts).combine_chunks() for parts in self._chunks]
-        group, left, rest = [], rows, []
-        for table in whole:
-            if left:
-                group.append(table.slice(0, left))
-                if table.num_rows > left:
-                    rest.append([table.slice(left)])
-                left -= min(left, table.num_rows)
-            else:
-                rest.append([table])
-        self.writer.write_table(pa.concat_tables(group), row_group_size=rows)
+        group: list[list[pa.Array]] = [[] for _ in self.schema]
+        left, rest = rows, []
+        for chunk in self._chunks:
+            count = sum(len(array) for array in chunk[0])
+            taken = min(left, count)
+            for column, arrays in zip(group, chunk if taken else ()):
+                joined = pa.concat_arrays(arrays)
+                arrays[:] = [joined.slice(taken)] if taken < count else []
+                column.append(joined.slice(0, taken))
+            left -= taken
+            if taken < count:
+                rest.append(chunk)
+        table = pa.Table.from_arrays([pa.chunked_array(arrays, type=field.type)
+                                      for arrays, field in zip(group, self.schema)], schema=self.schema)
+        self.writer.write_table(table, row_group_size=rows)
         self._chunks, self._rows, self.written = rest, self._rows - rows, self.written + rows
 
     def close(self) -> None:
