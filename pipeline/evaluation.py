@@ -21,18 +21,15 @@ routes at other sites) both run their scenarios through here.
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 import pyarrow as pa
-import torch
 
-from pipeline import gospa, io, ospa, plot_table, routes, simulate
+from pipeline import gospa, io, ospa, plot_table, routes, simulate, unit_pool
 from pipeline.params import EvaluationRun, Params
 from pipeline.plot_table import NO_TARGET, Plots
 from pipeline.progress import progress_logger
@@ -238,43 +235,6 @@ def relative_cost(name: str, scenario: Scenario) -> float:
     return (PLOTS_REFERENCE_COST if method is None else method.relative_cost) * len(scenario.plots)
 
 
-_WORKER: Evaluation | None = None  # a worker process's evaluation, made by its initializer
-
-
-def _start_worker(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> None:
-    """Worker initializer: read the scenarios and load the models once for all the units it runs.
-    Batches are a few windows: one PyTorch thread (ONNX Runtime sessions use one already)."""
-    global _WORKER
-    torch.set_num_threads(1)
-    _WORKER = prepare(params, simulated_dir, routes_dir, models_dir)
-
-
-def _unit_in_worker(name: str, index: int) -> UnitResult:
-    return evaluate_unit(_WORKER, name, index)
-
-
-def completed_units(evaluation: Evaluation, units: list[tuple[str, int]], workers: int
-                    ) -> Iterator[tuple[tuple[str, int], UnitResult]]:
-    """Each unit (run name, scenario index) with its result, as it completes: in this process with
-    one worker, else in `workers` processes started by the forkserver (a forked copy of a process
-    running PyTorch or ONNX Runtime threads can deadlock), each loading its own scenarios and
-    models. Units are started in the order given."""
-    if workers == 1:
-        for unit in units:
-            yield unit, evaluate_unit(evaluation, *unit)
-        return
-    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("forkserver"), _start_worker,
-                               (evaluation.params, *evaluation.folders))
-    try:
-        pending: dict[Future, tuple[str, int]] = {pool.submit(_unit_in_worker, *unit): unit for unit in units}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield pending.pop(future), future.result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
 def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) -> dict[str, dict[str, float]]:
     """A run's metrics (without its speed) over the scenarios of each route strategy, by strategy
     in the order of routes.STRATEGIES: how it fares on straight legs, short turns, long turns and
@@ -302,7 +262,8 @@ def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
     parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
     results, per_scan, examples, by_strategy = {}, {}, {}, {}
     report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((name, index), result) in enumerate(completed_units(evaluation, units, workers), start=1):
+    for done, ((name, index), result) in enumerate(unit_pool.completed_units(
+            units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
         parts[name][index] = result
         report(done, len(units))
         if len(parts[name]) == len(scenarios):

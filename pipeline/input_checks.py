@@ -94,7 +94,7 @@ def _check_bounds(table: pa.Table, path: Path, checks: tuple[Check, ...]) -> Non
         if column not in table.column_names:
             continue
         data = table.column(column)
-        values = data.to_numpy(zero_copy_only=False).astype(float)
+        values = data.to_numpy(zero_copy_only=False).astype(float, copy=False)
         bad = ~(valid(values) | data.is_null().to_numpy(zero_copy_only=False))
         if bad.any():
             row = int(np.argmax(bad))
@@ -105,6 +105,9 @@ def _check_bounds(table: pa.Table, path: Path, checks: tuple[Check, ...]) -> Non
 def _check_unique(table: pa.Table, path: Path, column: str, why: str) -> None:
     """No value of `column` twice: name the first repeated value and its rows."""
     values = table.column(column).to_numpy()
+    ordered = np.sort(values)
+    if not (ordered[1:] == ordered[:-1]).any():  # the usual case, in a fraction of np.unique's memory
+        return
     _, first, counts = np.unique(values, return_index=True, return_counts=True)
     repeated = counts > 1
     if repeated.any():
@@ -116,12 +119,21 @@ def _check_unique(table: pa.Table, path: Path, column: str, why: str) -> None:
                             f"(column '{column}' must be unique: {why})")
 
 
+def changes(order: np.ndarray, keys: tuple[np.ndarray, ...] | list[np.ndarray]) -> np.ndarray:
+    """Whether each row of `order` (N,) after the first differs from the row before it in any of
+    the `keys` (each (N,)): (N - 1,) booleans, one key at a time (no (N, K) copy of the keys)."""
+    differs = np.zeros(max(len(order) - 1, 0), dtype=bool)
+    for key in keys:
+        ordered = key[order]
+        differs |= ordered[1:] != ordered[:-1]
+    return differs
+
+
 def time_lags(times: np.ndarray, *groups: np.ndarray) -> np.ndarray:
     """How far (s) each plot is earlier than the latest plot before it (in the given order) of its
     group (rows with equal `groups` values); 0 for a plot in time order."""
     order = np.lexsort((np.arange(len(times)), *reversed(groups)))
-    keys = np.column_stack(groups)[order]
-    starts = np.flatnonzero(np.r_[True, (keys[1:] != keys[:-1]).any(axis=1)])
+    starts = np.flatnonzero(np.r_[True, changes(order, groups)])
     lags = np.zeros(len(times))
     for start, stop in zip(starts, [*starts[1:], len(times)]):
         rows = order[start:stop]

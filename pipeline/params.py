@@ -479,6 +479,7 @@ class Params:
     workers: int        # compute.workers: processes for independent work; results do not depend on it
     associate: Associate
     fusion: Fusion
+    chunk_plots: int    # compute.chunk_plots: plots `track` holds placed at a time; results do not depend on it
 
 
 class _Section(Mapping):
@@ -1300,6 +1301,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
         associate=_associate(_get(tree, "associate", "params")),
         fusion=_fusion(_get(tree, "fusion", "params"), _get(tree, "radar", "params")),
+        chunk_plots=_integer(_get(tree, "compute", "params"), "chunk_plots", "compute", 1),
     )
     unknown = tree.unread()
     if unknown:

@@ -20,6 +20,11 @@ every packet twice, and a twin associated with its own plot at distance 0 would 
 half the scans. Plots out of time order within a scenario are sorted (stable) with a warning
 giving how many plots moved and the largest backward step: a recording merged from several files
 is often slightly out of order, and the tracker needs time order.
+
+`recording` does all of that but the placing, and keeps the checked input columns (a
+`Recording`); the plots are placed from it a part at a time (`Recording.plots`,
+`Recording.scenarios`), so that `track` holds a long recording in a fraction of the memory of
+its plot table. `plot_table` places every plot at once.
 """
 
 from __future__ import annotations
@@ -118,6 +123,15 @@ class Plots:
             yield int(scenario_id), self.take(np.flatnonzero(self.scenario_id == scenario_id))
 
 
+def joined(parts: list[Plots]) -> Plots:
+    """The plots of `parts` (parts of one recording) one after the other; truth known if known in
+    every part; the first part's `skipped` (each part carries the recording's)."""
+    columns = ("plot_id", "radar_id", "scenario_id", "time", "position", "range_m", "covariance", "target_id")
+    return Plots(*(np.concatenate([getattr(part, name) for part in parts]) for name in columns),
+                 all(part.has_truth for part in parts), {k: v for part in parts for k, v in part.radars.items()},
+                 parts[0].skipped)
+
+
 def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
     """Each described radar (RADAR_INPUT_SCHEMA rows, optionally with RADAR_ERROR_COLUMNS) as
     params' `radar` at that site, with the row's scan period and error figures where it gives them."""
@@ -131,11 +145,69 @@ def sensors(radar_table: pa.Table, radar: Radar) -> dict[int, Radar]:
     return out
 
 
+@dataclass(frozen=True)
+class Recording:
+    """A checked recording before its plots are placed: `table` the plots (PLOT_INPUT_SCHEMA) in
+    file order, twins dropped; `order` (N,) the rows in scenario, then time order (stable);
+    `radars` by id; `has_truth` whether any plot has a target id; `skipped` as in `Plots`;
+    `plot_counts` the plots by radar id, every described radar listed.
+
+    It keeps the compact input columns (about 60 bytes a plot with `order`) and places plots in
+    ECEF, with their covariances (96 bytes a plot more), a part at a time (`plots`, `scenarios`):
+    `track` reads a 24-hour dense recording this way in a fraction of the plot table's memory."""
+
+    table: pa.Table
+    order: np.ndarray
+    radars: Mapping[int, Radar]
+    has_truth: bool
+    skipped: Mapping[str, int]
+    plot_counts: Mapping[int, int]
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+    def plots(self, rows: np.ndarray | slice = slice(None)) -> Plots:
+        """The plot table of the plots at `rows` of the sorted order (all by default)."""
+        table = self.table.take(self.order[rows])
+        radar_ids, range_m = table.column("radar_id").to_numpy(), table.column("range_m").to_numpy()
+        azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
+        position, covariance = np.empty((len(table), 3)), np.empty((len(table), 3, 3))
+        for radar_id in np.unique(radar_ids):
+            chosen = np.flatnonzero(radar_ids == radar_id)
+            # a lone plot of a radar with more is placed twice over: numpy's matmul and einsum take
+            # another path for one row, whose last bit can differ from the whole recording's
+            at = np.r_[chosen, chosen] if len(chosen) == 1 and self.plot_counts[int(radar_id)] > 1 else chosen
+            radar = self.radars[int(radar_id)]
+            placed = geodesy.plot_to_ecef(range_m[at], azimuth[at], altitude[at], radar)
+            position[chosen] = placed[:len(chosen)]
+            covariance[chosen] = baselines.measurement_covariance(placed, radar)[:len(chosen)]
+        return Plots(table.column("plot_id").to_numpy(), radar_ids,
+                     table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
+                     table.column("time_unix_s").to_numpy(), position, range_m, covariance,
+                     table.column("target_id").fill_null(NO_TARGET).to_numpy(), self.has_truth, dict(self.radars),
+                     self.skipped)
+
+    def scenarios(self, chunk_plots: int) -> Iterator[tuple[int, Iterator[Plots]]]:
+        """Each scenario (in scenario id order) with its plots in time order, `chunk_plots` at a time."""
+        scenario_ids = self.table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()[self.order]
+        starts = np.flatnonzero(np.r_[True, scenario_ids[1:] != scenario_ids[:-1]]) if len(self) else []
+        for start, stop in zip(starts, [*starts[1:], len(self)]):
+            yield int(scenario_ids[start]), (self.plots(slice(first, min(first + chunk_plots, stop)))
+                                             for first in range(start, stop, chunk_plots))
+
+
+
 def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str,
                skipped: Mapping[str, int] | None = None) -> Plots:
-    """The plot table of a recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id. Twins of earlier
-    plots are dropped; `skipped` (what the reader already left out, by reason) plus those twins
-    become the result's `skipped`.
+    """The plot table of a recording (`recording`'s arguments), all its plots placed."""
+    return recording(plots, radars, source, skipped).plots()
+
+
+def recording(plots: pa.Table, radars: Mapping[int, Radar], source: str,
+              skipped: Mapping[str, int] | None = None) -> Recording:
+    """A recording: `plots` in PLOT_INPUT_SCHEMA, `radars` by id. Twins of earlier plots are
+    dropped; `skipped` (what the reader already left out, by reason) plus those twins become the
+    result's `skipped`; plots out of time order within their scenario are sorted, with a warning.
 
     Raises io.InputError naming `source` and the radar id when a plot's radar is not described."""
     radar_ids = plots.column("radar_id").to_numpy()
@@ -154,33 +226,20 @@ def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str,
     scenario_ids = plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
     times = plots.column("time_unix_s").to_numpy()
     _warn_out_of_order(times, scenario_ids, source)
-    order = np.lexsort((times, scenario_ids))
-    table = plots.take(order)
-    radar_ids, range_m = table.column("radar_id").to_numpy(), table.column("range_m").to_numpy()
-    azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
-    position, covariance = np.empty((len(order), 3)), np.empty((len(order), 3, 3))
-    for radar_id in np.unique(radar_ids):
-        rows = radar_ids == radar_id
-        radar = radars[int(radar_id)]
-        position[rows] = geodesy.plot_to_ecef(range_m[rows], azimuth[rows], altitude[rows], radar)
-        covariance[rows] = baselines.measurement_covariance(position[rows], radar)
-    target = table.column("target_id")
-    return Plots(table.column("plot_id").to_numpy(), radar_ids, scenario_ids[order], times[order], position, range_m,
-                 covariance, target.fill_null(NO_TARGET).to_numpy(), target.null_count < len(target), dict(radars),
-                 skipped)
+    target = plots.column("target_id")
+    ids, counts = np.unique(plots.column("radar_id").to_numpy(), return_counts=True)
+    return Recording(plots, np.lexsort((times, scenario_ids)), dict(radars), target.null_count < len(target), skipped,
+                     {radar_id: 0 for radar_id in radars} | dict(zip(ids.tolist(), counts.tolist())))
 
 
 def _first_of_twins(plots: pa.Table) -> np.ndarray:
     """Rows (ascending) of the plots that are not twins of an earlier row: the same radar, scenario,
     time, range, azimuth and altitude (the plot id may differ, as when each of two redundant feeds'
     copies got its own)."""
-    keys = np.column_stack([plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
-                            plots.column("radar_id").to_numpy(),
-                            *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg",
-                                                                           "altitude_m"))])
-    order = np.lexsort(keys.T[::-1])  # stable: of equal rows, the earliest comes first
-    ordered = keys[order]
-    return np.sort(order[np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]])
+    keys = [plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(), plots.column("radar_id").to_numpy(),
+            *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg", "altitude_m"))]
+    order = np.lexsort(keys[::-1])  # stable: of equal rows, the earliest comes first
+    return np.sort(order[np.r_[True, input_checks.changes(order, keys)]])
 
 
 def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str) -> None:
@@ -194,18 +253,29 @@ def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str)
 
 
 def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plots:
-    """Plots from Parquet (the schema `simulate` writes, or a user's with PLOT_INPUT_SCHEMA's
+    """The plot table of `read_parquet_recording`, all its plots placed."""
+    return read_parquet_recording(plots_path, radar_path, radar).plots()
+
+
+def read_parquet_recording(plots_path: Path, radar_path: Path, radar: Radar) -> Recording:
+    """A recording from Parquet (the schema `simulate` writes, or a user's with PLOT_INPUT_SCHEMA's
     columns) and their radar description (RADAR_FILE_SCHEMA), each checked (`input_checks`). Errors
     name the file and column."""
-    plots = io.read_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
+    plots = io.read_numeric_parquet(plots_path, PLOT_INPUT_SCHEMA, optional=OPTIONAL_PLOT_COLUMNS)
     input_checks.check_plots(plots, plots_path)
     radars = io.read_parquet(radar_path, RADAR_FILE_SCHEMA, optional=OPTIONAL_RADAR_COLUMNS)
     input_checks.check_radars(radars, radar_path)
-    return plot_table(plots, sensors(radars, radar), str(plots_path))
+    return recording(plots, sensors(radars, radar), str(plots_path))
 
 
 def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar, radar_path: Path | None = None) -> Plots:
-    """Plots of ASTERIX CAT048 files given in time order; `first_date` is the UTC date of the first
+    """The plot table of `read_asterix_recording`, all its plots placed."""
+    return read_asterix_recording(paths, first_date, radar, radar_path).plots()
+
+
+def read_asterix_recording(paths: list[Path], first_date: date, radar: Radar, radar_path: Path | None = None
+                           ) -> Recording:
+    """The recording of ASTERIX CAT048 files given in time order; `first_date` is the UTC date of the first
     record. The radars' sites come from the description at `radar_path` (RADAR_FILE_SCHEMA, checked
     as for Parquet input) where it lists the radar, else from CAT034 I034/120
     (`asterix_io.with_radar_description`); a described radar's own error figures apply to its plots.
@@ -215,14 +285,14 @@ def read_asterix_plots(paths: list[Path], first_date: date, radar: Radar, radar_
     if radar_path is not None:
         description = io.read_parquet(radar_path, RADAR_FILE_SCHEMA, optional=OPTIONAL_RADAR_COLUMNS)
         input_checks.check_radars(description, radar_path)
-    recording = asterix_io.with_radar_description(asterix_io.decode(paths, first_date), description, source)
-    plots = recording.plots
+    decoded = asterix_io.with_radar_description(asterix_io.decode(paths, first_date), description, source)
+    plots = decoded.plots
     for name in OPTIONAL_PLOT_COLUMNS:
         plots = plots.append_column(name, pa.nulls(plots.num_rows, pa.int32()))
-    radars = sensors(recording.radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar)
+    radars = sensors(decoded.radars.select(RADAR_INPUT_SCHEMA.names).cast(RADAR_INPUT_SCHEMA), radar)
     if description is not None:
         described = sensors(description, radar)
         radars = {radar_id: dataclasses.replace(site, **{name: getattr(described[radar_id], name)
                                                          for name in RADAR_ERROR_COLUMNS})
                   if radar_id in described else site for radar_id, site in radars.items()}
-    return plot_table(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA), radars, source, recording.skipped)
+    return recording(plots.select(PLOT_INPUT_SCHEMA.names).cast(PLOT_INPUT_SCHEMA), radars, source, decoded.skipped)

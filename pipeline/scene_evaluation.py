@@ -34,18 +34,15 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import multiprocessing
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 import pyarrow as pa
-import torch
 
-from pipeline import evaluation, gospa, io, ospa, plot_table, scenes, simulate
+from pipeline import evaluation, gospa, io, ospa, plot_table, scenes, simulate, unit_pool
 from pipeline.params import Params
 from pipeline.plot_table import Plots
 from pipeline.progress import progress_logger
@@ -198,43 +195,6 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
-_WORKER: SceneEvaluation | None = None  # a worker process's evaluation, made by its initializer
-
-
-def _start_worker(params: Params, scenes_dir: Path, models_dir: Path) -> None:
-    """Worker initializer: read the scenes and load the models once; one PyTorch thread (batches are
-    a few windows)."""
-    global _WORKER
-    torch.set_num_threads(1)
-    _WORKER = prepare(params, scenes_dir, models_dir)
-
-
-def _unit_in_worker(name: str, index: int, pictured: bool) -> SceneResult:
-    return evaluate_unit(_WORKER, name, index, pictured)
-
-
-def completed_units(evaluation: SceneEvaluation, units: list[tuple[str, int, bool]], workers: int
-                    ) -> Iterator[tuple[tuple[str, int, bool], SceneResult]]:
-    """Each unit (run name, scene index, pictured) with its result as it completes: here with one
-    worker, else in `workers` forkserver processes (a forked copy of a process running PyTorch or
-    ONNX Runtime threads can deadlock, as in `evaluation.completed_units`), each loading its own
-    scenes and models."""
-    if workers == 1:
-        for unit in units:
-            yield unit, evaluate_unit(evaluation, *unit)
-        return
-    pool = ProcessPoolExecutor(workers, multiprocessing.get_context("forkserver"), _start_worker,
-                               (evaluation.params, *evaluation.folders))
-    try:
-        pending: dict[Future, tuple[str, int, bool]] = {pool.submit(_unit_in_worker, *unit): unit for unit in units}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield pending.pop(future), future.result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
 def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[str, int]
                  ) -> tuple[dict[str, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
     """Every run over every scene in `workers` processes: each run's metrics (logged as soon as its
@@ -252,7 +212,8 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[str, 
     parts: dict[str, dict[int, SceneResult]] = {name: {} for name in evaluation.runs}
     results, pictured = {}, None
     report = progress_logger(f"evaluate_scenes ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((name, index, _), result) in enumerate(completed_units(evaluation, units, workers), start=1):
+    for done, ((name, index, _), result) in enumerate(unit_pool.completed_units(
+            units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
         parts[name][index] = result
         pictured = result.pictured or pictured
         report(done, len(units))

@@ -19,7 +19,7 @@ import dataclasses
 import logging
 from datetime import date
 from pathlib import Path
-from typing import Mapping
+from typing import Iterable, Iterator, Mapping
 
 import numpy as np
 import pyarrow as pa
@@ -30,7 +30,8 @@ from pipeline.params import Params, Radar, TrackerParams
 from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
-from pipeline.tracker.run import track
+from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.run import track_chunks
 from pipeline.tracker.updates import positions
 
 log = logging.getLogger("pipeline")
@@ -72,30 +73,46 @@ def recording_tracker_params(tracker: TrackerParams, radars: Mapping[int, Radar]
 def track_recording(plots: Plots, method: str, window_m: float, params: Params, models_dir: Path) -> pa.Table:
     """Track every scenario of a recording with `method`; one row per track update (TRACK_SCHEMA),
     `range_m` the range from the plot's radar to the track's position."""
-    models = load_models(models_dir, params, [method])
-    tracker_params = recording_tracker_params(params.tracker, plots.radars)
-    management = registry.management(tracker_params.management, tracker_params)
-    sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in plots.radars.items()}
-    parts = []
-    for scenario_id, scenario in plots.scenarios():
-        seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]
-        updates = track(scenario, registry.compose(method, models, tracker_params, window_m, seed))
-        states = positions(updates)
-        site = np.array([sites[r] for r in updates["radar_id"].tolist()]).reshape(-1, 3)
-        lat, lon, alt = geodesy.ecef_to_geodetic(states)
-        count = len(updates["track_id"])
-        parts.append(pa.Table.from_pydict({
-            "radar_id": updates["radar_id"].astype(np.int32),
-            "scenario_id": pa.array(np.full(count, scenario_id, np.int32), mask=np.full(count, scenario_id < 0)),
-            "track_id": updates["track_id"], "time_unix_s": updates["time_unix_s"], "plot_id": updates["plot_id"],
-            "x_ecef_m": states[:, 0], "y_ecef_m": states[:, 1], "z_ecef_m": states[:, 2],
-            "latitude_deg": lat, "longitude_deg": lon, "altitude_m": alt,
-            "range_m": np.linalg.norm(states - site, axis=1), "weight": updates["weight"],
-            "status": [management.status(w) for w in updates["weight"]],
-            "association": updates["association"].astype(str), "association_error": updates["association_error"],
-            **covariance_columns(updates["position_covariance"]),
-        }, schema=TRACK_SCHEMA))
+    parts = [part for _, part, _ in tracked_parts(((scenario_id, iter([scenario]))
+                                                   for scenario_id, scenario in plots.scenarios()),
+                                                  plots.radars, method, window_m, params, models_dir)]
     return pa.concat_tables(parts) if parts else TRACK_SCHEMA.empty_table()
+
+
+def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapping[int, Radar], method: str,
+                  window_m: float, params: Params, models_dir: Path) -> Iterator[tuple[int, pa.Table, bool]]:
+    """Track each scenario, given as its plots in time-ordered chunks, with `method`: the track
+    updates (TRACK_SCHEMA) of each chunk in turn, with its scenario id and whether it is the
+    scenario's first. `radars`: every radar of the recording."""
+    models = load_models(models_dir, params, [method])
+    tracker_params = recording_tracker_params(params.tracker, radars)
+    management = registry.management(tracker_params.management, tracker_params)
+    sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in radars.items()}
+    for scenario_id, chunks in scenarios:
+        seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]
+        tracker = registry.compose(method, models, tracker_params, window_m, seed)
+        for number, updates in enumerate(track_chunks(chunks, tracker)):
+            yield scenario_id, _track_table(updates, scenario_id, sites, management), number == 0
+
+
+def _track_table(updates: dict[str, np.ndarray], scenario_id: int, sites: Mapping[int, np.ndarray],
+                 management: TrackManagement) -> pa.Table:
+    """Track updates (`pipeline.tracker.updates`) of one scenario as TRACK_SCHEMA rows."""
+    states = positions(updates)
+    site = np.array([sites[r] for r in updates["radar_id"].tolist()]).reshape(-1, 3)
+    lat, lon, alt = geodesy.ecef_to_geodetic(states)
+    count = len(updates["track_id"])
+    return pa.Table.from_pydict({
+        "radar_id": updates["radar_id"].astype(np.int32),
+        "scenario_id": pa.array(np.full(count, scenario_id, np.int32), mask=np.full(count, scenario_id < 0)),
+        "track_id": updates["track_id"], "time_unix_s": updates["time_unix_s"], "plot_id": updates["plot_id"],
+        "x_ecef_m": states[:, 0], "y_ecef_m": states[:, 1], "z_ecef_m": states[:, 2],
+        "latitude_deg": lat, "longitude_deg": lon, "altitude_m": alt,
+        "range_m": np.linalg.norm(states - site, axis=1), "weight": updates["weight"],
+        "status": [management.status(w) for w in updates["weight"]],
+        "association": updates["association"].astype(str), "association_error": updates["association_error"],
+        **covariance_columns(updates["position_covariance"]),
+    }, schema=TRACK_SCHEMA)
 
 
 def summary_path(out: Path) -> Path:
@@ -103,47 +120,64 @@ def summary_path(out: Path) -> Path:
     return out.with_name(f"{out.stem}.summary.json")
 
 
-def run_summary(plots: Plots, tracks: pa.Table) -> dict:
-    """What a user checks first after `track`: the plots tracked, the records or plots left out by
-    reason (`Plots.skipped`), the confirmed tracks, and per radar its plots and the confirmed tracks
-    it fed. A track is one (scenario, track id): each scenario's radars are tracked together, so a
-    track may hold plots of several radars; it counts once in the total and once for each radar
-    whose plots updated it while confirmed."""
-    confirmed = np.asarray(tracks.column("status")) == "confirmed"
-    radar_ids = np.asarray(tracks.column("radar_id"))[confirmed]
-    keys = np.column_stack([np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO))[confirmed],
-                            np.asarray(tracks.column("track_id"))[confirmed]])
+class RunSummary:
+    """What a user checks first after `track`, gathered as the track updates are written: the plots
+    tracked, the records or plots left out by reason (`Plots.skipped`), the confirmed tracks, and
+    per radar its plots and the confirmed tracks it fed. A track is one (scenario, track id): each
+    scenario's radars are tracked together, so a track may hold plots of several radars; it counts
+    once in the total and once for each radar whose plots updated it while confirmed. Holds the
+    confirmed tracks' keys, not the updates."""
 
-    def distinct(rows: np.ndarray) -> int:
-        return len(np.unique(keys[rows], axis=0)) if rows.any() else 0
+    def __init__(self, plots: int, plot_counts: Mapping[int, int], skipped: Mapping[str, int]) -> None:
+        self.plots, self.plot_counts, self.skipped = plots, plot_counts, skipped
+        self.updates = 0
+        self.confirmed: dict[int, set[tuple[int, int]]] = {radar_id: set() for radar_id in plot_counts}
 
-    radars = {str(r): {"plots": int((plots.radar_id == r).sum()), "confirmed_tracks": distinct(radar_ids == r)}
-              for r in sorted(plots.radars)}
-    return {"plots_tracked": len(plots), "skipped": dict(sorted(plots.skipped.items())),
-            "plots_skipped": int(sum(plots.skipped.values())), "track_updates": tracks.num_rows,
-            "confirmed_tracks": distinct(np.ones(len(keys), bool)), "radars": radars}
+    def add(self, tracks: pa.Table) -> None:
+        """Count a part of the track updates (TRACK_SCHEMA)."""
+        self.updates += tracks.num_rows
+        confirmed = np.asarray(tracks.column("status")) == "confirmed"
+        radar_ids = np.asarray(tracks.column("radar_id"))[confirmed].tolist()
+        scenario_ids = np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO))[confirmed].tolist()
+        track_ids = np.asarray(tracks.column("track_id"))[confirmed].tolist()
+        for radar_id, key in zip(radar_ids, zip(scenario_ids, track_ids)):
+            self.confirmed[radar_id].add(key)
+
+    def report(self) -> dict:
+        radars = {str(r): {"plots": self.plot_counts[r], "confirmed_tracks": len(self.confirmed[r])}
+                  for r in sorted(self.plot_counts)}
+        return {"plots_tracked": self.plots, "skipped": dict(sorted(self.skipped.items())),
+                "plots_skipped": int(sum(self.skipped.values())), "track_updates": self.updates,
+                "confirmed_tracks": len(set().union(*self.confirmed.values())), "radars": radars}
 
 
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path) -> None:
+    """Track a recording into `out` (TRACK_SCHEMA) and its summary beside it (`summary_path`). The
+    recording is placed, tracked and written `compute.chunk_plots` plots at a time; an ASTERIX
+    recording is decoded whole first. Nothing is written on an error."""
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
         if plots_path is not None:
             raise io.InputError("give --plots (Parquet) or --asterix files, not both")
-        plots = plot_table.read_asterix_plots(asterix_paths, first_date, params.radar, radar_path)
+        recording = plot_table.read_asterix_recording(asterix_paths, first_date, params.radar, radar_path)
     else:
         if plots_path is None or radar_path is None:
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
-        plots = plot_table.read_parquet_plots(plots_path, radar_path, params.radar)
-    tracks = track_recording(plots, method, window_m, params, models_dir)
-    summary = run_summary(plots, tracks)
-    io.write_parquet(tracks, out)
-    io.write_json(summary, summary_path(out))
-    skipped = ", ".join(f"{count} {reason}" for reason, count in summary["skipped"].items())
+        recording = plot_table.read_parquet_recording(plots_path, radar_path, params.radar)
+    summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
+    with io.parquet_chunks(out, TRACK_SCHEMA) as written:
+        for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
+                                             window_m, params, models_dir):
+            written.add(part, new_chunk=first)
+            summary.add(part)
+        report = summary.report()
+        io.write_json(report, summary_path(out))
+    skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
     log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on %d radars -> %s, summary %s",
-             len(plots), f"skipped {skipped}" if skipped else "none skipped", tracks.num_rows,
-             summary["confirmed_tracks"], len(plots.radars), out, summary_path(out))
+             len(recording), f"skipped {skipped}" if skipped else "none skipped", report["track_updates"],
+             report["confirmed_tracks"], len(recording.radars), out, summary_path(out))
 
 
 def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:

@@ -63,6 +63,7 @@ def test_default_params_load():
      ["training.predictor.early_stopping_min_improvement", "-0.01"]),
     ("training.autoencoder.lr_decay_factor", 0.0, ["training.autoencoder.lr_decay_factor", "0.0"]),
     ("compute.workers", 0, ["compute.workers", "0"]),
+    ("compute.chunk_plots", 0, ["compute.chunk_plots", "0"]),
     # track management
     ("tracker.management", "mofn", ["tracker.management", "'mofn'", "m_of_n"]),
     ("tracker.confirm_m", 6, ["tracker.confirm_m = 6", "confirm_n = 5"]),

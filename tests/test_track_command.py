@@ -17,7 +17,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline import baselines, cli, geodesy, io, plot_table
-from pipeline.track_command import recording_tracker_params
+from pipeline import track_command as track_command_module
+from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from tests import tracker_fixtures as tf
@@ -58,11 +59,12 @@ def two_radar_recording(params, rng: np.random.Generator) -> tuple[pa.Table, pa.
     return pa.concat_tables(tables), description, np.array(target_ids)
 
 
-def track_command(folder: Path, models: Path, method: str, plots: pa.Table, radars: pa.Table) -> int:
-    """`python -m pipeline track` on the recording, written with default params in `folder`; the
-    output goes to folder / "tracks.parquet"."""
+def track_command(folder: Path, models: Path, method: str, plots: pa.Table, radars: pa.Table,
+                  changes: dict | None = None) -> int:
+    """`python -m pipeline track` on the recording, written with default params (but `changes`) in
+    `folder`; the output goes to folder / "tracks.parquet"."""
     plots_path, radar_path = tf.write_recording(folder / "recording", plots, radars)
-    params_path = write_params(tf.params_tree(), folder / "params.yaml")
+    params_path = write_params(tf.params_tree(changes), folder / "params.yaml")
     return cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
                      "--models", str(models), "--method", method, "--out", str(folder / "tracks.parquet")])
 
@@ -360,3 +362,97 @@ def test_m_of_n_counts_opportunities_in_the_recordings_own_scans(params):
     both = recording_tracker_params(params.tracker, {1: slow, 2: params.radar})
     assert both.opportunity_s == pytest.approx(params.radar.scan_period_s)
     assert dataclasses.replace(both, opportunity_s=params.tracker.opportunity_s) == params.tracker
+
+
+@pytest.mark.parametrize("method", ["imm", "kalman_cv_gnn"])
+def test_a_recording_read_in_chunks_gives_the_bytes_of_one_read_whole(params, tmp_path, filters_only, method):
+    """Three scenarios of the two-radar recording (copies under other scenario and plot ids),
+    in file order scenario 9, 7, 8: tracked 5 plots at a time (chunks cut scans, live tracks and
+    scenarios) the output file and summary are byte for byte those of one chunk, and the one
+    chunk's those of the whole plot table tracked and written at once (`track_recording`)."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(4))
+    copies = [with_column(with_values(plots, "scenario_id", np.arange(plots.num_rows), scenario), "plot_id",
+                          plots.column("plot_id").to_numpy() + 10000 * scenario) for scenario in (9, 8)]
+    recording = pa.concat_tables([copies[0], plots, copies[1]])
+    outputs = {}
+    for chunk in (5, 1000000):
+        folder = tmp_path / str(chunk)
+        assert track_command(folder, filters_only, method, recording, radars, {"compute.chunk_plots": chunk}) == 0
+        outputs[chunk] = [(folder / name).read_bytes() for name in ("tracks.parquet", "tracks.summary.json")]
+        assert sorted(p.name for p in folder.iterdir()) == ["params.yaml", "recording", "tracks.parquet",
+                                                            "tracks.summary.json"]
+    assert outputs[5] == outputs[1000000]
+    whole = track_recording(plot_table.read_parquet_plots(*tf.write_recording(tmp_path / "whole", recording, radars),
+                                                          params.radar), method, 4000.0, params, filters_only)
+    io.write_parquet(whole, tmp_path / "whole.parquet")
+    assert (tmp_path / "whole.parquet").read_bytes() == outputs[5][0]
+    assert pq.read_table(tmp_path / "whole.parquet").column("scenario_id").unique().to_pylist() == [7, 8, 9]
+
+
+def test_an_output_written_in_row_groups_has_the_bytes_of_one_write(tmp_path):
+    """`io.ParquetChunks` with row groups of 4 rows, given chunks of 3, 6 and 2 rows in parts of 1-2
+    rows: the bytes of `pq.write_table` on the chunks joined, in row groups of 4."""
+    chunks = [pa.table({"x": np.arange(start, stop, dtype=np.float64)}) for start, stop in ((0, 3), (3, 9), (9, 11))]
+    with pq.ParquetWriter(tmp_path / "parts.parquet", chunks[0].schema, compression="zstd",
+                          write_statistics=True) as writer:
+        written = io.ParquetChunks(writer, chunks[0].schema, row_group_rows=4)
+        for chunk in chunks:
+            for first in range(0, chunk.num_rows, 2):
+                written.add(chunk.slice(first, 2), new_chunk=first == 0)
+        written.close()
+    pq.write_table(pa.concat_tables(chunks), tmp_path / "whole.parquet", compression="zstd", write_statistics=True,
+                   row_group_size=4)
+    assert (tmp_path / "parts.parquet").read_bytes() == (tmp_path / "whole.parquet").read_bytes()
+    assert pq.ParquetFile(tmp_path / "parts.parquet").metadata.num_row_groups == 3
+
+
+def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
+    """The tracker fails after the first chunk's updates were written: no output, no summary, no
+    temporary file; an earlier output of the same name is left as it was."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    (tmp_path / "tracks.parquet").write_bytes(b"earlier")
+    real = track_command_module.track_chunks
+
+    def failing(chunks, tracker):
+        yield next(real(chunks, tracker))
+        raise RuntimeError("tracker failed")
+
+    monkeypatch.setattr(track_command_module, "track_chunks", failing)
+    with pytest.raises(RuntimeError, match="tracker failed"):
+        track_command(tmp_path, filters_only, "imm", plots, radars, {"compute.chunk_plots": 10})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["models", "params.yaml", "recording", "tracks.parquet"]
+    assert (tmp_path / "tracks.parquet").read_bytes() == b"earlier"
+
+
+@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "missing"])
+def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(params, tmp_path, monkeypatch,
+                                                                                change):
+    """`io.read_numeric_parquet`, reading 7 rows at a time, against `io.read_parquet` on the same
+    file: the same values (and nulls), or the same error naming the same first row and count (a NaN
+    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, no
+    range column)."""
+    plots, _, _ = two_radar_recording(params, np.random.default_rng(6))
+    if change == "nan":
+        plots = with_values(plots, "range_m", [9, 20], np.nan)
+    elif change == "null":
+        azimuth = plots.column("azimuth_deg").to_numpy()
+        plots = plots.set_column(plots.schema.get_field_index("azimuth_deg"), "azimuth_deg",
+                                 pa.array(azimuth, mask=np.isin(np.arange(len(azimuth)), [3, 15])))
+    elif change == "type":
+        text = plots.column("altitude_m").cast(pa.string()).to_pylist()
+        text[12] = "high"
+        plots = plots.set_column(plots.schema.get_field_index("altitude_m"), "altitude_m", pa.array(text))
+    elif change == "missing":
+        plots = plots.drop_columns(["range_m"])
+    path = tmp_path / "plots.parquet"
+    pq.write_table(plots, path, row_group_size=10)
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    arguments = (path, plot_table.PLOT_INPUT_SCHEMA, plot_table.OPTIONAL_PLOT_COLUMNS)
+    if change == "none":
+        assert io.read_numeric_parquet(*arguments).equals(io.read_parquet(*arguments))
+        return
+    with pytest.raises(io.InputError) as expected:
+        io.read_parquet(*arguments)
+    with pytest.raises(io.InputError) as got:
+        io.read_numeric_parquet(*arguments)
+    assert str(got.value) == str(expected.value)

@@ -18,7 +18,10 @@ from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, True
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
 from pipeline.tracker.management import ThesisWeights
-from pipeline.tracker.run import Composition, track
+from pipeline.tracker import registry
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import Composition, track, track_chunks
+from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
 ORIGIN = np.array([2.9e6, 1.3e6, 5.5e6])  # ECEF metres, near the default radar
@@ -160,6 +163,15 @@ def test_global_nearest_neighbour_scans_follow_each_radars_rotation():
     np.testing.assert_array_equal(GlobalNearestPerScan().batches(recording), [0, 3, 5, 6])
 
 
+def test_global_nearest_neighbour_counts_a_later_parts_scans_from_the_radars_first_plot():
+    """A recording read in parts: the second part (from 5.9 s) is cut at 6 s and 12 s, counted from
+    the first part's first plot, not at 11.9 s from its own."""
+    recording = plots([0.0, 2.0, 5.9, 6.1, 11.0, 12.5], [0, 1, 2, 3, 4, 5])
+    assigner = GlobalNearestPerScan()
+    assigner.batches(recording.take(np.arange(2)))
+    np.testing.assert_array_equal(assigner.batches(recording.take(np.arange(2, 6))), [0, 1, 3, 4])
+
+
 def test_the_oracle_joins_each_plot_to_its_own_targets_track():
     """Two targets crossing (their plots swap sides) among false plots, with no gating and an infinite
     pre-filter: each target's plots form its own track, whatever the distances; each false plot starts
@@ -177,3 +189,66 @@ def test_the_oracle_joins_each_plot_to_its_own_targets_track():
 def test_the_oracle_needs_the_truth():
     with pytest.raises(io.InputError, match="target_id"):
         track(plots([0, 6], [0, 100]), composition(assigner=TrueAssociation()))
+
+
+@pytest.mark.parametrize("distance_m", [20000.0, 7000.0, 45000.0])
+def test_the_prefilter_grid_finds_exactly_the_tracks_a_scan_of_all_finds(distance_m):
+    """Tracks started, moved and deleted at random over 60 km around ORIGIN (cubes of 20 km, so
+    many tracks sit near cube faces): after every change, `near` gives, for every plot, the same
+    sorted slots as testing the distance of every live track, for distances below, at and above
+    the cube edge."""
+    rng = np.random.default_rng(7)
+    count = 400
+    positions = ORIGIN + rng.uniform(-60000.0, 60000.0, (count, 3))
+    positions[:40] = np.round(positions[:40] / 20000.0) * 20000.0  # exactly on cube faces
+    features = np.column_stack([tf.T0 + np.arange(count, dtype=float), positions, np.full(count, 1e5)])
+    live = LiveTracks(tf.plots_of(features, np.arange(count), tf.make_params().radar), RULE, capacity=4,
+                      cell_m=20000.0)
+    for row in range(count):
+        if row % 3 == 2 and len(live):  # move a live track onto another plot's position
+            slot = int(rng.choice(np.flatnonzero(live.alive)))
+            live.associate(slot, row, positions[rng.integers(count)])
+        else:
+            live.start(row)
+        if row % 50 == 49:  # tracks silent for more than a silence period die
+            live.manage(tf.T0 + row + RULE.silence_s * rng.uniform(0.2, 1.0))
+        for probe in rng.choice(row + 1, 5):
+            offset = live.position - positions[probe]
+            brute_force = np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < distance_m ** 2)
+            assert np.array_equal(live.near(int(probe), distance_m), brute_force)
+    assert len(live) < count  # some tracks were deleted
+
+
+def _busy_recording():
+    """Eight straight flights (some within 3 km of each other) and clutter, 40 scans, with truth."""
+    radar = tf.make_params().radar
+    rng = np.random.default_rng(3)
+    flights = [(tf.straight_features(radar, (20000.0 * k, 60000.0 + 1500.0 * (k % 2), 8000.0),
+                                     (150.0, -100.0 + 25.0 * k, 0.0), 40, t_offset=0.3 * k), np.full(40, k))
+               for k in range(8)]
+    clutter = tf.clutter_features(radar, 40, 30.0, rng, half_width_m=120000.0)
+    features, targets = tf.merge(*flights, (clutter, np.full(len(clutter), NO_TARGET)))
+    return tf.plots_of(features, np.arange(len(features)), radar, targets)
+
+
+@pytest.mark.parametrize("method", ["imm", "kalman_cv_gnn", "oracle"])
+def test_a_recording_tracked_in_chunks_gives_the_updates_of_tracking_it_whole(method):
+    """Chunks of 1, 7 and 100 plots (cutting scans and live tracks): the joined update tables equal
+    the whole recording's, bit for bit, for nearest per plot, global nearest per scan and the oracle."""
+    recording = _busy_recording()
+    params = tf.make_params()
+    models = Models(filters=tf.untuned_filters(params))
+
+    def composed():
+        return registry.compose(method, models, params.tracker, 4000.0, [params.tracker.seed])
+
+    whole = track(recording, composed())
+    assert len(set(whole["track_id"].tolist())) < len(recording)  # associations happened
+    for size in (1, 7, 100):
+        chunks = [recording.take(np.arange(start, min(start + size, len(recording))))
+                  for start in range(0, len(recording), size)]
+        tables = list(track_chunks(chunks, composed()))
+        assert len(tables) == len(chunks)
+        for key, column in whole.items():
+            joined = np.concatenate([table[key] for table in tables])
+            assert joined.dtype == column.dtype and joined.tobytes() == column.tobytes(), (size, key)

@@ -71,13 +71,19 @@ class NearestPerPlot:
 
 
 class GlobalNearestPerScan:
-    """Global nearest neighbour over each antenna scan of each radar."""
+    """Global nearest neighbour over each antenna scan of each radar. One per run: it remembers
+    each radar's first plot time, so that the scans of a recording read a part at a time are
+    counted from the same origin in every part."""
+
+    def __init__(self) -> None:
+        self._first: dict[int, float] = {}
 
     def batches(self, plots: Plots) -> np.ndarray:
         if not len(plots):
             return np.zeros(1, dtype=np.int64)
-        first = {radar_id: plots.time[np.argmax(plots.radar_id == radar_id)] for radar_id in np.unique(plots.radar_id)}
-        origin = np.array([first[r] for r in plots.radar_id.tolist()])
+        for radar_id in np.unique(plots.radar_id).tolist():
+            self._first.setdefault(radar_id, float(plots.time[np.argmax(plots.radar_id == radar_id)]))
+        origin = np.array([self._first[r] for r in plots.radar_id.tolist()])
         period = np.array([plots.radars[r].scan_period_s for r in plots.radar_id.tolist()])
         scans = np.floor((plots.time - origin) / period).astype(np.int64)
         change = (np.diff(scans) != 0) | (np.diff(plots.radar_id) != 0)

@@ -19,6 +19,8 @@ radar's) and stores the result.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from pipeline import batch_filters, motion_models
@@ -26,6 +28,9 @@ from pipeline.batch_filters import BatchState
 from pipeline.classical_filters import FilterSettings
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
+
+MOTION_CACHE = 4096  # F and Q kept for this many time steps: quantised plot times (1/128 s) repeat a few
+                     # hundred steps; unquantised times would otherwise grow the cache with the recording
 
 
 class KalmanEstimator:
@@ -41,7 +46,7 @@ class KalmanEstimator:
         self.mu = np.zeros((capacity, models))
         self.time = np.zeros(capacity)
         self.started = np.zeros(capacity, dtype=bool)
-        self._motions: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self.motion = functools.lru_cache(maxsize=MOTION_CACHE)(self._motion)
 
     def _grow(self, capacity: int) -> None:
         extra = capacity - len(self.time)
@@ -69,13 +74,11 @@ class KalmanEstimator:
             self._store(fresh, batch_filters.mixed(self.settings, started), plots.time[rows])
             self.started[fresh] = True
 
-    def motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Each model's transition F and process noise Q (M, n, n each) over dt seconds, made once."""
-        found = self._motions.get(dt)
-        if found is None:
-            table = batch_filters.motion(self.settings, np.array([dt]))[0]
-            found = self._motions[dt] = (table[0], table[1])
-        return found
+    def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Each model's transition F and process noise Q (M, n, n each) over dt seconds; `motion`
+        is this, remembering the MOTION_CACHE most recent steps."""
+        table = batch_filters.motion(self.settings, np.array([dt]))[0]
+        return table[0], table[1]
 
     def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
         """The tracks' filters moved to `time`, unchanged: positions (K, 3), covariances (K, 3, 3),

@@ -7,6 +7,13 @@ generation, which changes whenever the slot's weight changes or the slot is reus
 entries are skipped. A free slot's position is infinite, so it is never within the pre-filter
 distance.
 
+The pre-filter (`near`) looks only at the tracks in the grid cells around the plot: the live
+tracks sit in a uniform grid of cubes `cell_m` on a side (ECEF), keyed by their position, moved
+when their position changes. A track within `distance_m` of the plot lies in a cube at most
+ceil(distance_m / cell_m) cubes from the plot's along each axis, so those cubes hold every
+candidate and the exact distance test on them gives the same tracks as a test on all; the cost
+per plot follows the tracks near it, not all live tracks (issue 16: 1000 aircraft at once).
+
 The state a track shows the loop is its position (ECEF metres) after its last update; what an
 estimator keeps beyond that (a filter's velocity and covariance, a network's past states) the
 estimator keeps, by slot. A track's history is the rows of its plots in the plot table being
@@ -22,15 +29,20 @@ scan, its next plot exactly `silence_s` = two scans later).
 
 from __future__ import annotations
 
+import functools
 import heapq
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline import plot_table
 from pipeline.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
 
 TIME_QUANTUM_S = 1.0 / 128.0  # ASTERIX CAT048 I048/140 time-of-day resolution (EUROCONTROL CAT048 ed. 1.32)
+DEFAULT_CELL_M = 20000.0  # params' default tracker.prefilter_m; `track` passes the run's own
+_AXIS = 1 << 32           # a cube's key packs its three indices, each offset by half this, into one int
 
 
 @dataclass
@@ -43,15 +55,24 @@ class Track:
     memory: object = None
 
 
+@functools.cache
+def _neighbours(reach: int) -> tuple[int, ...]:
+    """Key steps from a cube to the cubes at most `reach` cubes from it along each axis."""
+    steps = range(-reach, reach + 1)
+    return tuple((dx * _AXIS + dy) * _AXIS + dz for dx in steps for dy in steps for dz in steps)
+
+
 class LiveTracks:
     """The tracks alive now over the plots `plots`, managed by `management`.
 
     Arrays by slot: `position` (S, 3) the last estimated position, `last_plot` (S, 3) the last
     plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,); `tracks` the Track of each
-    slot (None when free). S grows by doubling when every slot is taken."""
+    slot (None when free). S grows by doubling when every slot is taken. `cell_m`: the grid's cube
+    edge (m); `near` is exact for any distance and fastest for distances up to it."""
 
-    def __init__(self, plots: Plots, management: TrackManagement, capacity: int = 64) -> None:
-        self.plots, self.management = plots, management
+    def __init__(self, plots: Plots, management: TrackManagement, capacity: int = 64,
+                 cell_m: float = DEFAULT_CELL_M) -> None:
+        self.plots, self.management, self.cell_m = plots, management, cell_m
         self.tracks: list[Track | None] = [None] * capacity
         self.position = np.full((capacity, 3), np.inf)
         self.last_plot = np.full((capacity, 3), np.inf)
@@ -62,6 +83,8 @@ class LiveTracks:
         self._due: list[tuple[float, int, int]] = []  # (time the slot falls due, slot, generation)
         self._free = list(range(capacity - 1, -1, -1))
         self._next_id = 0
+        self._cells: dict[int, set[int]] = {}  # cube key -> slots of the live tracks in it
+        self._cell_of: dict[int, int] = {}     # live slot -> its cube key
 
     def __len__(self) -> int:
         return len(self.tracks) - len(self._free)
@@ -77,10 +100,66 @@ class LiveTracks:
         self._generation.extend([0] * capacity)
         self._free = list(range(2 * capacity - 1, capacity - 1, -1))
 
+    def _key(self, position: np.ndarray) -> int:
+        """The key of the cube holding `position` (3,) m."""
+        x, y, z = (math.floor(value / self.cell_m) + _AXIS // 2 for value in position.tolist())
+        return (x * _AXIS + y) * _AXIS + z
+
+    def _place(self, slot: int) -> None:
+        """File `slot` under the cube of its position (after a start or a position change); a track
+        whose position is not finite (never within any distance) under none."""
+        position = self.position[slot]
+        old = self._cell_of.get(slot)
+        if not np.isfinite(position).all():
+            if old is not None:
+                self._unplace(slot)
+            return
+        key = self._key(position)
+        if old == key:
+            return
+        if old is not None:
+            self._unplace(slot)
+        self._cells.setdefault(key, set()).add(slot)
+        self._cell_of[slot] = key
+
+    def _unplace(self, slot: int) -> None:
+        key = self._cell_of.pop(slot, None)
+        if key is None:
+            return
+        cell = self._cells[key]
+        cell.discard(slot)
+        if not cell:
+            del self._cells[key]
+
     def near(self, row: int, distance_m: float) -> np.ndarray:
-        """Slots (sorted) of the tracks whose position is within `distance_m` of plot `row`."""
-        offset = self.position - self.plots.position[row]
-        return np.flatnonzero(np.einsum("ij,ij->i", offset, offset) < distance_m ** 2)
+        """Slots (sorted) of the tracks whose position is within `distance_m` of plot `row`: the
+        tracks of the cubes around the plot's (all placed tracks when those cubes outnumber the
+        filled ones, or the distance is infinite), tested exactly."""
+        reach = np.ceil(distance_m / self.cell_m)
+        cells = self._cells
+        if not (2 * reach + 1) ** 3 < len(cells):  # NaN (infinite distance and cube) included
+            slots = list(self._cell_of)
+        else:
+            centre = self._key(self.plots.position[row])
+            slots = [slot for step in _neighbours(int(reach)) for slot in cells.get(centre + step, ())]
+        if not slots:
+            return np.empty(0, dtype=np.int64)
+        slots = np.sort(np.array(slots, dtype=np.int64))
+        offset = self.position[slots] - self.plots.position[row]
+        return slots[np.einsum("ij,ij->i", offset, offset) < distance_m ** 2]
+
+    def carry(self, plots: Plots) -> int:
+        """Move on to the next part of a recording read a part at a time: the plot table becomes
+        the live tracks' plots (in their order) followed by `plots`, and every live track's rows
+        are renumbered into it. Returns the row of `plots`' first plot. Raises ValueError if a
+        live track holds no plot (it always holds its first)."""
+        live = [track for track in self.tracks if track is not None]
+        kept = np.unique(np.concatenate([np.asarray(track.rows, dtype=np.int64) for track in live])) if live \
+            else np.empty(0, dtype=np.int64)
+        for track in live:
+            track.rows = np.searchsorted(kept, track.rows).tolist()
+        self.plots = plot_table.joined([self.plots.take(kept), plots])
+        return len(kept)
 
     def start(self, row: int) -> int:
         """A new track from plot `row`; its position is the plot's. Returns its slot."""
@@ -94,6 +173,7 @@ class LiveTracks:
         self.plot_count[slot] = 1
         self.alive[slot] = True
         self._schedule(slot, self.plots.time[row] + self.management.silence(self.weight[slot]))
+        self._place(slot)
         return slot
 
     def _schedule(self, slot: int, due: float) -> None:
@@ -104,6 +184,7 @@ class LiveTracks:
         """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight."""
         self.tracks[slot].rows.append(row)
         self.position[slot] = position
+        self._place(slot)
         self.last_plot[slot] = self.plots.position[row]
         self.weight[slot] = self.management.associated(self.weight[slot])
         self.plot_count[slot] += 1
@@ -136,6 +217,7 @@ class LiveTracks:
         self._free.append(slot)
         self._generation[slot] += 1
         self.alive[slot] = False
+        self._unplace(slot)
         self.position[slot] = np.inf
         self.last_plot[slot] = np.inf
         return track
