@@ -1,5 +1,6 @@
 """What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
-each ready for fast batch inference, and the tuned classical filters by kind (cv, ca, imm)."""
+each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm) and the
+network-scaled filter."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pipeline.classical_filters import FilterSettings
 
 if TYPE_CHECKING:
     from pipeline.inference import BatchNetwork
+    from pipeline.kalman_net import KalmanNet
     from pipeline.model_store import LoadedModel
 
 
@@ -23,6 +25,7 @@ class Models:
     autoencoder: LoadedModel | None = None
     filters: Mapping[str, FilterSettings] = field(default_factory=dict)
     backend: str = "onnx"
+    kalman_net: KalmanNet | None = None  # the network-scaled filter (issue 17), in eval mode
     runnable: dict[str, BatchNetwork] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

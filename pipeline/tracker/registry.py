@@ -4,7 +4,7 @@ A method is a name (what params' `evaluate.runs`, `track --method` and the repor
 label for the tables, a family (`neural`, `classical`, or `reference` for the oracle, which is
 given the true association and is run only as an evaluation reference), the pieces it loads
 (`pipeline.tracker.loading`: the `predictor`, `filter` and `autoencoder` networks, the tuned
-classical filters `kalman_tuned`), and `compose`, which builds its tracker
+classical filters `kalman_tuned`, the network-scaled filter `kalman_net`), and `compose`, which builds its tracker
 (`pipeline.tracker.run.Composition`) from the loaded pieces, the tracker params, the window
 (metres: the VIA window, the young-track radius of every method) and a seed (MIA's sampling).
 
@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
 NETWORKS = ("predictor", "filter")  # the estimator of every neural method
 TUNED_FILTERS = "kalman_tuned"
+KALMAN_NET = "kalman_net"  # the network-scaled Kalman filter (issue 17)
 GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
@@ -110,16 +111,28 @@ def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) 
                         params.young_track_plots_ae, window_m, params)
 
 
-def _classical(name: str, kind: str, global_nearest: bool):
-    """A tuned filter of `kind` with the chi-square gate, nearest neighbour per plot or per scan."""
+def _chi_square(name: str, estimator: Callable[["Models"], "Estimator"], global_nearest: bool):
+    """A filter (`estimator(models)`, one per run) with the chi-square gate, nearest neighbour per plot or per scan."""
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.gate import ChiSquareGate
-        from pipeline.tracker.kalman import KalmanEstimator
-        return _composition(name, KalmanEstimator(models.filters[kind]), ChiSquareGate(params.kalman_gate_probability),
+        return _composition(name, estimator(models), ChiSquareGate(params.kalman_gate_probability),
                             params.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None)
     return compose
+
+
+def _classical(name: str, kind: str, global_nearest: bool):
+    """A tuned filter of `kind` with the chi-square gate."""
+    def estimator(models: "Models") -> "Estimator":
+        from pipeline.tracker.kalman import KalmanEstimator
+        return KalmanEstimator(models.filters[kind])
+    return _chi_square(name, estimator, global_nearest)
+
+
+def _kalman_net_estimator(models: "Models") -> "Estimator":
+    from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator
+    return KalmanNetEstimator(models.kalman_net)
 
 
 def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
@@ -149,6 +162,9 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("mia", "MIA", NEURAL, NETWORKS, _mia, 2.2),
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
+    *(Method(name, label, NEURAL, (KALMAN_NET,), _chi_square(name, _kalman_net_estimator, gnn), cost)
+      for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 3.0),
+                                     ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 3.3))),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
