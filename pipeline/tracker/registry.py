@@ -111,28 +111,28 @@ def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) 
                         params.young_track_plots_ae, window_m, params)
 
 
-def _chi_square(name: str, estimator: Callable[["Models"], "Estimator"], global_nearest: bool):
-    """A filter (`estimator(models)`, one per run) with the chi-square gate, nearest neighbour per plot or per scan."""
+def _classical(name: str, kind: str, global_nearest: bool):
+    """A tuned filter of `kind` with the chi-square gate, nearest neighbour per plot or per scan."""
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.gate import ChiSquareGate
-        return _composition(name, estimator(models), ChiSquareGate(params.kalman_gate_probability),
+        from pipeline.tracker.kalman import KalmanEstimator
+        return _composition(name, KalmanEstimator(models.filters[kind]), ChiSquareGate(params.kalman_gate_probability),
                             params.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None)
     return compose
 
 
-def _classical(name: str, kind: str, global_nearest: bool):
-    """A tuned filter of `kind` with the chi-square gate."""
-    def estimator(models: "Models") -> "Estimator":
-        from pipeline.tracker.kalman import KalmanEstimator
-        return KalmanEstimator(models.filters[kind])
-    return _chi_square(name, estimator, global_nearest)
-
-
-def _kalman_net_estimator(models: "Models") -> "Estimator":
-    from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator
-    return KalmanNetEstimator(models.kalman_net)
+def _kalman_net(name: str, global_nearest: bool):
+    """The network-scaled filter with the chi-square gate on its own scales, nearest neighbour per plot or per scan."""
+    def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+        from pipeline.tracker.assigner import GlobalNearestPerScan
+        from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
+        estimator = KalmanNetEstimator(models.kalman_net)
+        return _composition(name, estimator, PlotScaledGate(estimator, params.kalman_gate_probability),
+                            params.young_track_plots, window_m, params,
+                            assigner=GlobalNearestPerScan() if global_nearest else None)
+    return compose
 
 
 def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
@@ -162,7 +162,7 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("mia", "MIA", NEURAL, NETWORKS, _mia, 2.2),
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
-    *(Method(name, label, NEURAL, (KALMAN_NET,), _chi_square(name, _kalman_net_estimator, gnn), cost)
+    *(Method(name, label, NEURAL, (KALMAN_NET,), _kalman_net(name, gnn), cost)
       for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 3.0),
                                      ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 3.3))),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
