@@ -15,9 +15,13 @@ import torch
 from pipeline import io, kalman_net
 from pipeline.kalman_net import KalmanNet, KalmanNetConfig
 from pipeline.tracker import registry
+from pipeline.tracker.kalman import KalmanEstimator
+from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator
 from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
+from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 from tests.test_track_command import track_command, two_radar_recording
 
@@ -64,6 +68,22 @@ def test_pinned_scales_track_as_the_kalman_estimator_with_the_same_filter(params
     for column in ("x_ecef_m", "y_ecef_m", "z_ecef_m"):
         np.testing.assert_allclose(network[column], classical[column], rtol=0.0, atol=1e-6)
     np.testing.assert_allclose(network["position_covariance"], classical["position_covariance"], rtol=1e-9)
+
+
+def test_prediction_without_a_plot_is_the_kalman_estimators_with_pinned_scales(params):
+    """`predict` (no plot, so no network step: the scales of the track's last plot) of a track started
+    at its first plot and updated with its second equals the classical CV estimator's prediction."""
+    flight = tf.straight_features(params.radar, (40e3, 60e3, 9000.0), (180.0, 90.0, 0.0), 3)
+    plots = tf.plots_of(flight, np.arange(3), params.radar)
+    predictions = []
+    for estimator in (KalmanNetEstimator(pinned_network(params)), KalmanEstimator(tf.untuned_filters(params)["cv"])):
+        live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
+        slot = live.start(0)
+        estimator.start(live, slot)
+        live.associate(slot, 1, estimator.update(live, slot, 1, None, 0)[0])
+        predictions.append(estimator.predict(live, np.array([slot]), plots.time[2]))
+    np.testing.assert_allclose(predictions[0].positions, predictions[1].positions, rtol=0.0, atol=1e-6)
+    np.testing.assert_allclose(predictions[0].covariances, predictions[1].covariances, rtol=1e-9)
 
 
 def test_track_runs_kalman_net_from_its_model_file_and_names_the_stage_when_it_is_missing(params, tmp_path):

@@ -163,8 +163,8 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
     *(Method(name, label, NEURAL, (KALMAN_NET,), _kalman_net(name, gnn), cost)
-      for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 3.0),
-                                     ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 3.3))),
+      for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 8.0),
+                                     ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 8.8))),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
