@@ -3,7 +3,7 @@
 Every live track runs the trained model's base filter (cv, ca or singer) in PyTorch
 (`pipeline.torch_filters`, float64, no gradients), with the network's recurrent memory kept
 beside it; both sit in tensors by slot, as `pipeline.tracker.kalman.KalmanEstimator` keeps its
-filters: the posterior state x (S, 1, n), P (S, 1, n, n), mu (S, 1), the time it is at (S,), the
+filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
 network's `kalman_net.Memory` (hidden (S, H) and the increments' last values), and the scales the
 network gave at the track's last plot (q, and singer's manoeuvre scale) (S,).
 
@@ -52,10 +52,11 @@ class KalmanNetEstimator:
         self.model, self.spec = model, model.base
         self.r0_scale = model.config.r0_scale
         self.singer = model.config.base == "singer"
-        size, dtype = motion_models.state_size(self.spec.models[0]), self.spec.dtype
-        self.x = torch.zeros((capacity, 1, size), dtype=dtype)
-        self.P = torch.zeros((capacity, 1, size, size), dtype=dtype)
-        self.mu = torch.ones((capacity, 1), dtype=dtype)
+        models, size = len(self.spec.models), motion_models.state_size(self.spec.models[0])
+        dtype = self.spec.dtype
+        self.x = torch.zeros((capacity, models, size), dtype=dtype)
+        self.P = torch.zeros((capacity, models, size, size), dtype=dtype)
+        self.mu = torch.ones((capacity, models), dtype=dtype)
         self.q = torch.ones(capacity, dtype=dtype)
         self.manoeuvre = torch.ones(capacity, dtype=dtype)
         self.memory = model.memory(capacity)
