@@ -60,8 +60,7 @@ class KalmanNetEstimator:
         self.q = torch.ones(capacity, dtype=dtype)
         self.manoeuvre = torch.ones(capacity, dtype=dtype)
         self.memory = model.memory(capacity)
-        self.time = np.zeros(capacity)
-        self.started = np.zeros(capacity, dtype=bool)
+        self.time = np.full(capacity, np.nan)  # NaN: the slot's filter is not started
 
     def _grow(self, capacity: int) -> None:
         extra = capacity - len(self.time)
@@ -71,13 +70,13 @@ class KalmanNetEstimator:
         self.x, self.P, self.mu = grown(self.x), grown(self.P), grown(self.mu, 1.0)
         self.q, self.manoeuvre = grown(self.q, 1.0), grown(self.manoeuvre, 1.0)
         self.memory = Memory(**{f.name: grown(getattr(self.memory, f.name)) for f in fields(Memory)})
-        self.time = np.concatenate([self.time, np.zeros(extra)])
-        self.started = np.concatenate([self.started, np.zeros(extra, dtype=bool)])
+        self.time = np.concatenate([self.time, np.full(extra, np.nan)])
 
     def start(self, tracks: LiveTracks, slot: int) -> None:
+        """The track at `slot` is new: its filter starts when it is first stepped."""
         if slot >= len(self.time):
             self._grow(len(tracks.tracks))
-        self.started[slot] = False
+        self.time[slot] = np.nan
 
     def _state(self, slots: np.ndarray) -> State:
         index = torch.from_numpy(slots)
@@ -92,7 +91,6 @@ class KalmanNetEstimator:
         for f in fields(Memory):
             getattr(self.memory, f.name)[index] = getattr(memory, f.name)
         self.time[slots] = time
-        self.started[slots] = True
 
     def _measured(self, tracks: LiveTracks, rows: list[int]) -> tuple[Tensor, Tensor]:
         """The plots' positions z (K, 3) m and R0 = their covariances x r0_scale (K, 3, 3) m^2."""
@@ -103,7 +101,7 @@ class KalmanNetEstimator:
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet at their first plots, with the
         network's first step (fresh: no features yet) giving R's scale."""
-        fresh = slots[~self.started[slots]]
+        fresh = slots[np.isnan(self.time[slots])]
         if not len(fresh):
             return
         rows = [tracks.tracks[slot].rows[0] for slot in fresh]
