@@ -6,7 +6,6 @@ the classical estimator with the same filter; `track --method kalman_net` runs i
 
 from __future__ import annotations
 
-
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -55,7 +54,8 @@ def test_pinned_scales_track_as_the_kalman_estimator_with_the_same_filter(params
     second = tf.straight_features(params.radar, (40e3, 70e3, 8000.0), (180.0, -60.0, 0.0), 20, t_offset=2.0)
     first[:, 1:4] += rng.normal(0.0, 40.0, (len(first), 3))
     clutter = tf.clutter_features(params.radar, 20, 3.0, rng, half_width_m=80000.0)
-    features, ids = tf.merge((first, np.arange(20)), (second, 100 + np.arange(20)), (clutter, 1000 + np.arange(len(clutter))))
+    features, ids = tf.merge((first, np.arange(20)), (second, 100 + np.arange(20)),
+                             (clutter, 1000 + np.arange(len(clutter))))
     plots = tf.plots_of(features, ids, params.radar)
     models = Models(filters=tf.untuned_filters(params), kalman_net=pinned_network(params))
     network, classical = (track(plots, registry.compose(name, models, params.tracker, 4000.0, 0))

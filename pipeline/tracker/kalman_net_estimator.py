@@ -82,7 +82,7 @@ class KalmanNetEstimator:
         index = torch.from_numpy(slots)
         return State(self.x[index], self.P[index], self.mu[index])
 
-    def _store(self, slots: np.ndarray, state: State, scales: StepScales, memory: Memory, time: float) -> None:
+    def _store(self, slots: np.ndarray, state: State, scales: StepScales, memory: Memory, time: np.ndarray) -> None:
         index = torch.from_numpy(slots)
         self.x[index], self.P[index], self.mu[index] = state.x, state.P, state.mu
         self.q[index] = scales.q
@@ -98,6 +98,14 @@ class KalmanNetEstimator:
         return (torch.as_tensor(plots.position[rows], dtype=self.spec.dtype),
                 torch.as_tensor(plots.covariance[rows], dtype=self.spec.dtype) * self.r0_scale)
 
+    def _network(self, slots: np.ndarray, before: State, z: Tensor, R0: Tensor, dt: Tensor, fresh: bool
+                 ) -> tuple[StepScales, Memory]:
+        """The network's scales for the step of the tracks at `slots` from posterior `before` to plots z
+        (K, 3) of nominal covariance R0 (K, 3, 3) after dt (K,) s, the track's first step if `fresh`, and
+        its memory after the step (`KalmanNet.step_scales`; the stored memory is left unchanged)."""
+        flags = torch.full((len(slots),), fresh), torch.full((len(slots),), not fresh)
+        return self.model.step_scales(_rows(self.memory, torch.from_numpy(slots)), Step(0, before, z, R0, dt), *flags)
+
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet at their first plots, with the
         network's first step (fresh: no features yet) giving R's scale."""
@@ -107,9 +115,8 @@ class KalmanNetEstimator:
         rows = [tracks.tracks[slot].rows[0] for slot in fresh]
         z, R0 = self._measured(tracks, rows)
         with torch.no_grad():
-            step = Step(0, torch_filters.start(self.spec, z, R0), z, R0, torch.zeros(len(fresh), dtype=torch.float64))
-            scales, memory = self.model.step_scales(_rows(self.memory, torch.from_numpy(fresh)), step, torch.ones(len(fresh), dtype=torch.bool),
-                                                    torch.zeros(len(fresh), dtype=torch.bool))
+            scales, memory = self._network(fresh, torch_filters.start(self.spec, z, R0), z, R0,
+                                           torch.zeros(len(fresh), dtype=torch.float64), fresh=True)
             started = torch_filters.start(self.spec, z, R0 * scales.r[:, None, None])
         self._store(fresh, started, scales, memory, tracks.plots.time[rows])
 
@@ -137,9 +144,7 @@ class KalmanNetEstimator:
         dt = torch.as_tensor(tracks.plots.time[rows] - self.time[slots], dtype=torch.float64)
         with torch.no_grad():
             before = self._state(slots)
-            scales, memory = self.model.step_scales(_rows(self.memory, torch.from_numpy(slots)), Step(0, before, z, R0, dt),
-                                                    torch.zeros(len(slots), dtype=torch.bool),
-                                                    torch.ones(len(slots), dtype=torch.bool))
+            scales, memory = self._network(slots, before, z, R0, dt, fresh=False)
             prior = torch_filters.predicted(self.spec, before, *torch_filters.motion(self.spec, dt, scales.q,
                                                                                      scales.manoeuvre))
             R = R0 * scales.r[:, None, None]
