@@ -6,6 +6,8 @@ the classical estimator with the same filter; `track --method kalman_net` runs i
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -13,6 +15,7 @@ import torch
 
 from pipeline import io, kalman_net
 from pipeline.kalman_net import KalmanNet, KalmanNetConfig
+from pipeline.torch_filters import SequenceBatch
 from pipeline.tracker import registry
 from pipeline.tracker.kalman import KalmanEstimator
 from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator
@@ -84,6 +87,35 @@ def test_prediction_without_a_plot_is_the_kalman_estimators_with_pinned_scales(p
         predictions.append(estimator.predict(live, np.array([slot]), plots.time[2]))
     np.testing.assert_allclose(predictions[0].positions, predictions[1].positions, rtol=0.0, atol=1e-6)
     np.testing.assert_allclose(predictions[0].covariances, predictions[1].covariances, rtol=1e-9)
+
+
+@pytest.mark.parametrize("base", ["cv", "singer"])
+def test_a_track_is_filtered_as_in_training(params, base):
+    """A track updated plot by plot (the update stepping itself, as for a young track) gives the
+    positions and covariances of the training recursion (`KalmanNet.forward`) over the same plots,
+    with a network whose scales are not 1."""
+    config = replace(pinned_network(params).config, base=base, r0_scale=1.5)
+    torch.manual_seed(6)
+    model = KalmanNet(config)
+    with torch.no_grad():
+        for parameter in model.network.parameters():
+            parameter.normal_(0.0, 0.5)
+    model.eval()
+    flight = tf.straight_features(params.radar, (40e3, 60e3, 9000.0), (180.0, 90.0, 0.0), 8)
+    flight[:, 1:4] += np.random.default_rng(8).normal(0.0, 60.0, (len(flight), 3))
+    plots = tf.plots_of(flight, np.arange(len(flight)), params.radar)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
+    estimator = KalmanNetEstimator(model)
+    slot = live.start(0)
+    estimator.start(live, slot)
+    stepped = [estimator.update(live, slot, row, None, 0) for row in range(1, len(flight))]
+    as_batch = lambda values: torch.as_tensor(values)[None]
+    valid = torch.ones((1, len(flight)), dtype=torch.bool)
+    with torch.no_grad():
+        trained = model(SequenceBatch(as_batch(plots.time), as_batch(plots.position), as_batch(plots.covariance),
+                                      as_batch(plots.position), valid, torch.arange(len(flight))[None] == 0, valid))
+    np.testing.assert_allclose(np.array([p for p, _ in stepped]), trained.position[0, 1:].numpy(), rtol=0.0, atol=1e-6)
+    np.testing.assert_allclose(np.array([c for _, c in stepped]), trained.covariance[0, 1:].numpy(), rtol=1e-9)
 
 
 def test_track_runs_kalman_net_from_its_model_file_and_names_the_stage_when_it_is_missing(params, tmp_path):
