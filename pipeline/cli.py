@@ -65,6 +65,17 @@ def _train_kalman_net(args: argparse.Namespace) -> None:
                          Path(args.reports))
 
 
+def _train_association(args: argparse.Namespace) -> None:
+    from pipeline.association_stage import run_train_association
+    run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
+
+
+def _train_lstm_update(args: argparse.Namespace) -> None:
+    from pipeline.lstm_update_stage import run_train_lstm_update
+    run_train_lstm_update(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
+                          Path(args.reports))
+
+
 def _compare(args: argparse.Namespace) -> None:
     from pipeline.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
@@ -148,6 +159,17 @@ COMMANDS = {
                          "python -m pipeline train-kalman-net --simulated data/simulated --windows data/windows "
                          "--models models --reports reports",
                          ["params", "simulated", "windows", "models", "reports"]),
+    "train-association": (_train_association, "Train the seed's track-to-track association network on freshly "
+                          "simulated two-radar scenes and score it with the statistical, double-threshold and "
+                          "bias-robust methods against the bias (Lightning, one MLflow run).",
+                          "python -m pipeline train-association --models models --reports reports",
+                          ["params", "models", "reports"]),
+    "train-lstm-update": (_train_lstm_update, "Train the LSTM update on a CA Kalman prediction with its MC-dropout "
+                          "covariance and score it on the hold-out against the tuned CA and IMM (Lightning, one "
+                          "MLflow run).",
+                          "python -m pipeline train-lstm-update --simulated data/simulated --windows data/windows "
+                          "--models models --reports reports",
+                          ["params", "simulated", "windows", "models", "reports"]),
     "compare": (_compare, "The comparison report: every tracker (neural, classical, references) and the networks "
                 "against the tuned Kalman filters on the hold-out.",
                 "python -m pipeline compare --windows data/windows --models models --reports reports",

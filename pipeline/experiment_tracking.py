@@ -60,6 +60,7 @@ from urllib.request import pathname2url
 from pipeline.io import InputError, process_alive
 
 if TYPE_CHECKING:
+    from lightning.pytorch.loggers import MLFlowLogger
     from mlflow import ActiveRun, MlflowClient
 
     from pipeline.params import Params
@@ -220,6 +221,19 @@ def run_tags(stage: str) -> dict[str, str]:
     """The tags of a stage's run: the stage, the commit of the code, and the host and pid of the
     process, by which a later start of the stage tells a killed run from one still going."""
     return {"stage": stage, "git_commit": git_commit(), "host": socket.gethostname(), "pid": str(os.getpid())}
+
+
+def lightning_logger(params: Params, stage: str, command: str, data: Path) -> MLFlowLogger:
+    """Lightning's MLflow logger for the one run of a training stage that trains with `filter_training`
+    (`train_kalman_net`, `train_lstm_update`), the store checked first (`check_tracking_store`): its
+    tags, the hash of its input `data` and the command that made it."""
+    from lightning.pytorch.loggers import MLFlowLogger
+
+    uri = tracking_uri(params.training.tracking_uri)
+    check_tracking_store(uri, params.training.experiment, stage)
+    return MLFlowLogger(experiment_name=params.training.experiment, run_name=stage, tracking_uri=uri,
+                        tags={**run_tags(stage), "input_data_sha256": data_hash(data),
+                              "mlflow.source.name": f"python -m pipeline {command}"})
 
 
 def dvc_experiment() -> str | None:

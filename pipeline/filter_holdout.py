@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 import torch
+from scipy.stats import chi2
 
 from pipeline import baselines, geodesy, windows
 from pipeline import radar as radar_model
@@ -63,6 +64,32 @@ def scores(batch: SequenceBatch, filtered: Filtered) -> dict[str, float]:
             "p95_error_m": float(np.percentile(distance, 95)), "anees": float(nees.mean())}
 
 
+def detailed_scores(plots: windows.TargetPlots, length: int, batch: SequenceBatch, filtered: Filtered,
+                    turn_share: float, range_shares: tuple[float, ...]) -> dict:
+    """`scores` on the `window_batch` windows, and beside them:
+    - the mean error (m) in turns, the `turn_share` of windows of lowest truth linearity
+      (`windows.linearity`, thesis eq. 4.7), and on the straight rest;
+    - the ANEES's chi-square 95 % bounds: with n windows and 3 degrees of freedom each, n ANEES is
+      chi-square with 3n degrees of freedom if the covariances tell the truth (Bar-Shalom, Li and
+      Kirubarajan 2001, section 5.4.2), so chi2.ppf([0.025, 0.975], 3n) / n, and whether it is inside;
+    - the seed's accuracy measure (`shared/spec/related-work.md` section A, "5 % accuracy"): for each
+      of `range_shares`, the share of windows whose error is within it times the target's true range
+      at the scored plot."""
+    starts = windows.window_starts(plots.segment_id, length)
+    straightness = windows.linearity(windows.gather(plots.true_position, starts, length))
+    turning = straightness <= np.quantile(straightness, turn_share)
+    distance = (filtered.position[batch.scored] - batch.truth[batch.scored]).detach().norm(dim=-1).numpy()
+    true_range = plots.true_range_m[starts + length - 1]
+    result = scores(batch, filtered)
+    n = len(distance)
+    low, high = chi2.ppf([0.025, 0.975], 3 * n) / n
+    return {**result, "turn_mean_error_m": float(distance[turning].mean()),
+            "straight_mean_error_m": float(distance[~turning].mean()), "turn_windows": int(turning.sum()),
+            "anees_bounds": [float(low), float(high)], "anees_inside": bool(low <= result["anees"] <= high),
+            "within_range_share": {f"{share:g}": float((distance <= share * true_range).mean())
+                                   for share in range_shares}}
+
+
 def compare(plots: windows.TargetPlots, radar: Radar, length: int, filters: dict[str, FilterRun],
             factors: tuple[float, ...], seed: int) -> dict:
     """Each filter's `scores` on the hold-out windows, and its mean error with the plots re-noised at
@@ -78,3 +105,13 @@ def compare(plots: windows.TargetPlots, radar: Radar, length: int, filters: dict
             for name, run in filters.items():
                 result["mean_error_by_noise_m"][name].append(scores(noisy, run(noisy))["mean_error_m"])
     return result
+
+
+def compare_detailed(plots: windows.TargetPlots, radar: Radar, length: int, filters: dict[str, FilterRun],
+                     turn_share: float, range_shares: tuple[float, ...]) -> dict:
+    """Each filter's `detailed_scores` on the hold-out windows, and how many windows."""
+    batch = window_batch(plots, radar, length)
+    with torch.no_grad():
+        return {"windows": int(len(batch.times)),
+                "filters": {name: detailed_scores(plots, length, batch, run(batch), turn_share, range_shares)
+                            for name, run in filters.items()}}

@@ -28,7 +28,12 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler
 
-from pipeline import training  # noqa: F401  (Lightning's logging set up as for the other networks)
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from pipeline import io, training  # noqa: F401  (training: Lightning's logging set up as for the other networks)
+from pipeline import tuning
+from pipeline.params import Radar
 from pipeline.torch_filters import SequenceBatch
 
 log = logging.getLogger("pipeline")
@@ -44,6 +49,23 @@ class DescentConfig:
     truncation_steps: int
     seed: int
     deterministic: bool
+
+
+def training_segments(plots: pa.Table, holdout: pa.Table | None, radar: Radar, restart_gap_s: float,
+                      burn_in_updates: int, gate_probability: float, gated_from: int, segment_plots: int,
+                      truncation_steps: int, key: str) -> SequenceBatch:
+    """Training segments (B, segment_plots) of a split's target plots (`tuning.target_sequences`), the
+    plots of `holdout` (the windows stage's hold-out segments, when the split is theirs) left out.
+    InputError naming the param `key` (its truncation) when the longest segment is shorter."""
+    if holdout is not None:
+        plots = plots.filter(pc.invert(pc.is_in(plots.column("plot_id"), holdout.column("plot_id"))))
+    material = tuning.target_sequences(plots, radar, restart_gap_s, burn_in_updates, gate_probability, gated_from,
+                                       segment_plots=segment_plots)
+    longest = material.times.shape[1]
+    if longest < truncation_steps:
+        raise io.InputError(f"the longest training segment has {longest} plots, fewer than "
+                            f"{key}.truncation_steps = {truncation_steps}")
+    return SequenceBatch.from_sequences(material)
 
 
 class Segments(Dataset):
@@ -100,7 +122,7 @@ class FilterDescent(L.LightningModule):
         loss = self._error_sum / max(self._scored, 1)
         self.epoch_losses.append(loss)
         self.log(f"{self.label}.train_loss", loss)
-        log.info("train_kalman_net %s: epoch %d/%d, mean position error %.2f m, %.0f s", self.label,
+        log.info("%s: epoch %d/%d, mean position error %.2f m, %.0f s", self.label,
                  len(self.epoch_losses), self.config.epochs, loss, time.monotonic() - self._began)
 
     def configure_optimizers(self) -> dict:

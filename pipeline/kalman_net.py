@@ -32,13 +32,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
-from io import BytesIO
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
-from pipeline import io, torch_filters
+from pipeline import model_store, torch_filters
 from pipeline.torch_filters import FilterSpec, Filtered, SequenceBatch, State, Step, StepScales
 
 FEATURES = 4
@@ -205,16 +204,16 @@ class SequenceScaler:
         return scales
 
 
-def save(model: KalmanNet, path: Path, extras: dict | None = None) -> None:
-    """The config and weights in one torch file (written whole or not at all)."""
-    buffer = BytesIO()
-    torch.save({"config": asdict(model.config), "state_dict": model.state_dict(), "extras": extras or {}}, buffer)
-    io.write_bytes(buffer.getvalue(), path)
+def save(model: nn.Module, path: Path, extras: dict | None = None) -> None:
+    """A network with a dataclass `config` (this one, `lstm_update.LSTMUpdate`): the config and weights
+    (buffers included) in one torch file, written whole or not at all."""
+    model_store.write_bundle({"config": asdict(model.config), "state_dict": model.state_dict(),
+                              "extras": extras or {}}, path)
 
 
 def load(path: Path) -> KalmanNet:
     """A saved network-scaled filter, ready to filter (eval mode)."""
-    stored = torch.load(path, weights_only=True)
+    stored = model_store.read_bundle(path)
     model = KalmanNet(KalmanNetConfig(**stored["config"]))
     model.load_state_dict(stored["state_dict"])
     return model.eval()

@@ -15,11 +15,10 @@ from dataclasses import asdict
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.compute as pc
 
-from pipeline import experiment_tracking, io, kalman_net, materials, simulate, tuning
+from pipeline import experiment_tracking, io, kalman_net, materials, simulate
 from pipeline.classical_filters import FilterSettings
-from pipeline.filter_training import DescentConfig, descend
+from pipeline.filter_training import DescentConfig, descend, training_segments
 from pipeline.gradient_tuning import TunedFilter
 from pipeline.kalman_net import KalmanNet, KalmanNetConfig
 from pipeline.params import Params
@@ -48,39 +47,26 @@ def baseline_start(kind: str, params: Params) -> FilterSpec:
 
 def training_material(params: Params, plots: pa.Table, holdout: pa.Table) -> SequenceBatch:
     """Training segments (B, segment_plots) of the split's target plots, hold-out plots left out
-    (they are the windows stage's train split's: only that split has them). InputError when the
-    longest segment is shorter than the truncation."""
+    (they are the windows stage's train split's: only that split has them)."""
     k = params.kalman_net
-    if k.split == params.routes.split("train").name:
-        plots = plots.filter(pc.invert(pc.is_in(plots.column("plot_id"), holdout.column("plot_id"))))
-    material = tuning.target_sequences(plots, params.radar, k.restart_gap_s, k.burn_in_updates,
-                                       params.tracker.kalman_gate_probability, params.tracker.young_track_plots,
-                                       segment_plots=k.segment_plots)
-    longest = material.times.shape[1]
-    if longest < k.truncation_steps:
-        raise io.InputError(f"{k.split}: the longest training segment has {longest} plots, fewer than "
-                            f"kalman_net.truncation_steps = {k.truncation_steps}")
-    return SequenceBatch.from_sequences(material)
+    return training_segments(plots, holdout if k.split == params.routes.split("train").name else None,
+                             params.radar, k.restart_gap_s, k.burn_in_updates, params.tracker.kalman_gate_probability,
+                             params.tracker.young_track_plots, k.segment_plots, k.truncation_steps, "kalman_net")
 
 
 def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
                          reports_dir: Path) -> None:
-    from lightning.pytorch.loggers import MLFlowLogger
     import torch
 
     k = params.kalman_net
     plots_path = simulated_dir / k.split / "plots.parquet"
     batch = training_material(params, io.read_parquet(plots_path, simulate.PLOT_SCHEMA),
                               io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA))
-    uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
-    experiment_tracking.check_tracking_store(uri, params.training.experiment, "train_kalman_net")
+    logger = experiment_tracking.lightning_logger(params, "train_kalman_net", "train-kalman-net", plots_path)
     torch.set_num_threads(params.training.threads)
-    logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="train_kalman_net", tracking_uri=uri,
-                          tags={**experiment_tracking.run_tags("train_kalman_net"),
-                                "input_data_sha256": experiment_tracking.data_hash(plots_path),
-                                "mlflow.source.name": "python -m pipeline train-kalman-net"})
     log.info("train_kalman_net: %d segments of up to %d plots (%d scored), MLflow run %s in %s", len(batch.times),
-             batch.times.shape[1], int(batch.scored.sum()), logger.run_id, uri)
+             batch.times.shape[1], int(batch.scored.sum()), logger.run_id,
+             experiment_tracking.tracking_uri(params.training.tracking_uri))
     try:
         logger.log_hyperparams({f"kalman_net.{key}": value for key, value in asdict(k).items()})
         torch.manual_seed(k.seed)  # the initial weights: the same for a seed, whatever ran before in the process

@@ -35,27 +35,20 @@ class LoadedModel:
         return self.network(scaled_windows)
 
 
-def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,
-               extras: dict[str, Any] | None = None) -> None:
-    """Write the bundle atomically; the same weights give the same bytes.
+def write_bundle(bundle: dict[str, Any], path: str | Path) -> None:
+    """Write a dict of tensors and plain values atomically; the same values give the same bytes.
 
     torch.save names the records of its zip archive after the file it writes to, so saving to
     the temporary file made the bytes differ from run to run; the bundle is serialised in
     memory (archive name `bundle`) and written as bytes."""
-    bundle = {
-        "format_version": FORMAT_VERSION,
-        "config": config.to_dict(),
-        "scaler": scaler.to_dict(),
-        "extras": extras or {},
-        "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()},
-    }
     buffer = BytesIO()
     torch.save(bundle, buffer)
     io.write_bytes(buffer.getvalue(), path)
 
 
-def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:
-    """Load a bundle written by `save_model`; errors name the file and what is wrong."""
+def read_bundle(path: str | Path) -> dict[str, Any]:
+    """A dict written by `write_bundle` (tensors and plain values only: `weights_only`); InputError naming the
+    file when it is missing or not such a file."""
     path = Path(path)
     if not path.is_file():
         raise io.InputError(f"{path}: model file not found (run `dvc repro` to train it)")
@@ -63,7 +56,28 @@ def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedMode
         bundle = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for a corrupt or foreign file
         raise io.InputError(f"{path}: not a readable model file ({type(error).__name__}: {error})") from None
-    if not isinstance(bundle, dict) or bundle.get("format_version") != FORMAT_VERSION:
+    if not isinstance(bundle, dict):
+        raise io.InputError(f"{path}: not a model bundle")
+    return bundle
+
+
+def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,
+               extras: dict[str, Any] | None = None) -> None:
+    """Write the bundle atomically (`write_bundle`); the same weights give the same bytes."""
+    write_bundle({
+        "format_version": FORMAT_VERSION,
+        "config": config.to_dict(),
+        "scaler": scaler.to_dict(),
+        "extras": extras or {},
+        "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()},
+    }, path)
+
+
+def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:
+    """Load a bundle written by `save_model`; errors name the file and what is wrong."""
+    path = Path(path)
+    bundle = read_bundle(path)
+    if bundle.get("format_version") != FORMAT_VERSION:
         raise io.InputError(f"{path}: not a model bundle of format {FORMAT_VERSION}")
     config = NetworkConfig.from_dict(bundle["config"])
     if expected_kind is not None and config.kind != expected_kind:

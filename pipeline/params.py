@@ -320,6 +320,8 @@ class Kalman:
 KALMAN_NET_BASES = ("cv", "ca", "singer")   # base filters the network can scale (one motion model each)
 KALMAN_NET_CELLS = ("gru", "mlp")
 GRADIENT_KINDS = ("cv", "ca", "singer", "imm")  # filters tuned by gradient descent
+TRACK_MODELS = ("kalman", "two_point")          # association.tracks: how the synthetic radars make track points
+MIN_SCENE_SIZE = 10                             # association.scene_size: the network's convolutions need this much
 
 
 @dataclass(frozen=True)
@@ -356,6 +358,71 @@ class KalmanNet:
 
 
 @dataclass(frozen=True)
+class Association:
+    """Two radars' track-to-track association on the seed's synthetic setting (params.yaml `association`)."""
+
+    targets: tuple[int, int]
+    area_m: float
+    scan_period_s: float
+    track_points: int
+    noise_m: tuple[float, float]
+    detection_probability: float
+    speed_mps: tuple[float, float]
+    acceleration_std_mps2: float
+    tracks: str
+    train_bias_m: tuple[float, float]
+    eval_bias_m: tuple[float, ...]
+    eval_scenes: int
+    eval_seed: int
+    gate_probability: float
+    double_threshold_hits: int
+    max_bias_m: float
+    vote_radius_m: float
+    max_iterations: int
+    scene_size: int
+    scene_diameter_m: float
+    feature_hidden: tuple[int, ...]
+    decision_hidden: int
+    decision_threshold: float
+    epochs: int
+    scenes_per_epoch: int
+    scenes_per_batch: int
+    learning_rate: float
+    seed: int
+
+
+@dataclass(frozen=True)
+class LSTMUpdate:
+    """The LSTM update on a Kalman prediction and its hold-out comparison (params.yaml `lstm_update`)."""
+
+    split: str
+    hidden: int
+    dropout: float
+    mc_samples: int
+    detach_prediction: bool
+    position_scale_m: float
+    velocity_scale_mps: float
+    acceleration_scale_mps2: float
+    time_scale_s: float
+    initial_alpha: float
+    initial_beta: float
+    floor_m: float
+    start_velocity_std_mps: float
+    restart_gap_s: float
+    burn_in_updates: int
+    segment_plots: int
+    truncation_steps: int
+    batch_segments: int
+    epochs: int
+    learning_rate: float
+    seed: int
+    calibration_segments: int
+    calibration_ages: int
+    turn_share: float
+    range_shares: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class Params:
     radar: Radar
     aircraft: Mapping[str, Aircraft]
@@ -368,6 +435,8 @@ class Params:
     tracker: TrackerParams
     kalman: Kalman
     kalman_net: KalmanNet
+    association: Association
+    lstm_update: LSTMUpdate
     evaluate: Evaluate
     workers: int        # compute.workers: processes for independent work; results do not depend on it
 
@@ -1015,6 +1084,95 @@ def _kalman_net(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> KalmanNet
         noise_scales=tuple(float(v) for v in scales), noise_seed=_integer(tree, "noise_seed", p))
 
 
+def _association(tree: Mapping[str, Any]) -> Association:
+    """Checked before anything trains: the target count fits the scene tensor, the double threshold fits the
+    track history, the scene tensor is large enough for the network's convolutions."""
+    p = "association"
+    low, high = _interval(tree, "targets", p, 1)
+    if low != int(low) or high != int(high):
+        raise ParamError(f"{p}.targets = {[low, high]}: must be whole numbers")
+    size = _integer(tree, "scene_size", p, MIN_SCENE_SIZE)
+    if high > size:
+        raise ParamError(f"{p}.targets = {[int(low), int(high)]}: more targets than scene_size = {size} tracks")
+    track_points = _integer(tree, "track_points", p, 2)
+    hits = _integer(tree, "double_threshold_hits", p, 1)
+    if hits > track_points - 1:
+        raise ParamError(f"{p}.double_threshold_hits = {hits}: above the track history of track_points - 1 = "
+                         f"{track_points - 1} times")
+    tracks = _text(tree, "tracks", p)
+    if tracks not in TRACK_MODELS:
+        raise ParamError(f"{p}.tracks = {tracks!r}: must be one of {TRACK_MODELS}")
+    noise = _get(tree, "noise_m", p)
+    if (not isinstance(noise, list) or len(noise) != 2 or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in noise)):
+        raise ParamError(f"{p}.noise_m = {noise!r}: must be two positive numbers (radar 1's and radar 2's sigma)")
+    biases = _get(tree, "eval_bias_m", p)
+    if (not isinstance(biases, list) or not biases or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf for v in biases)):
+        raise ParamError(f"{p}.eval_bias_m = {biases!r}: must list non-negative numbers")
+    return Association(
+        targets=(int(low), int(high)), area_m=_positive(tree, "area_m", p),
+        scan_period_s=_positive(tree, "scan_period_s", p), track_points=track_points,
+        noise_m=(float(noise[0]), float(noise[1])),
+        detection_probability=_number(tree, "detection_probability", p, 0.0, 1.0, low_open=True),
+        speed_mps=_positive_interval(tree, "speed_mps", p),
+        acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), tracks=tracks,
+        train_bias_m=_interval(tree, "train_bias_m", p), eval_bias_m=tuple(float(v) for v in biases),
+        eval_scenes=_integer(tree, "eval_scenes", p, 1), eval_seed=_integer(tree, "eval_seed", p),
+        gate_probability=_number(tree, "gate_probability", p, 0.0, 1.0, low_open=True, high_open=True),
+        double_threshold_hits=hits, max_bias_m=_positive(tree, "max_bias_m", p),
+        vote_radius_m=_positive(tree, "vote_radius_m", p), max_iterations=_integer(tree, "max_iterations", p, 1),
+        scene_size=size, scene_diameter_m=_positive(tree, "scene_diameter_m", p),
+        feature_hidden=_sizes(tree, "feature_hidden", p), decision_hidden=_integer(tree, "decision_hidden", p, 1),
+        decision_threshold=_number(tree, "decision_threshold", p, 0.0, 1.0, low_open=True, high_open=True),
+        epochs=_integer(tree, "epochs", p, 1), scenes_per_epoch=_integer(tree, "scenes_per_epoch", p, 1),
+        scenes_per_batch=_integer(tree, "scenes_per_batch", p, 1), learning_rate=_positive(tree, "learning_rate", p),
+        seed=_integer(tree, "seed", p))
+
+
+def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Windows) -> LSTMUpdate:
+    """Checked before anything trains: dropout in [0, 1), at least one MC sample, training sequences
+    no shorter than the hold-out windows the estimator is scored on (`windows.filter_length`), the
+    truncation and burn-in within a sequence."""
+    p = "lstm_update"
+    segment_plots = _integer(tree, "segment_plots", p, 2)
+    if segment_plots < windows.filter_length:
+        raise ParamError(f"{p}.segment_plots = {segment_plots}: shorter than the hold-out windows it is scored on "
+                         f"(windows.filter_length = {windows.filter_length})")
+    truncation = _integer(tree, "truncation_steps", p, 1)
+    if truncation > segment_plots:
+        raise ParamError(f"{p}.truncation_steps = {truncation}: longer than the training sequences "
+                         f"(segment_plots = {segment_plots})")
+    burn_in = _integer(tree, "burn_in_updates", p)
+    if burn_in >= segment_plots:
+        raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot sequence to score")
+    ages = _integer(tree, "calibration_ages", p, 1)
+    if ages > segment_plots:
+        raise ParamError(f"{p}.calibration_ages = {ages}: older than the training sequences it is fitted on "
+                         f"(segment_plots = {segment_plots})")
+    shares = _get(tree, "range_shares", p)
+    if (not isinstance(shares, list) or not shares or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in shares)):
+        raise ParamError(f"{p}.range_shares = {shares!r}: must list positive numbers")
+    return LSTMUpdate(
+        split=_split_name(tree, p, splits), hidden=_integer(tree, "hidden", p, 1),
+        dropout=_number(tree, "dropout", p, 0.0, 1.0, high_open=True), mc_samples=_integer(tree, "mc_samples", p, 1),
+        detach_prediction=_boolean(tree, "detach_prediction", p),
+        position_scale_m=_positive(tree, "position_scale_m", p),
+        velocity_scale_mps=_positive(tree, "velocity_scale_mps", p),
+        acceleration_scale_mps2=_positive(tree, "acceleration_scale_mps2", p),
+        time_scale_s=_positive(tree, "time_scale_s", p), initial_alpha=_number(tree, "initial_alpha", p, 0.0, 1.0),
+        initial_beta=_number(tree, "initial_beta", p, 0.0, 2.0), floor_m=_positive(tree, "floor_m", p),
+        start_velocity_std_mps=_positive(tree, "start_velocity_std_mps", p),
+        restart_gap_s=_positive(tree, "restart_gap_s", p), burn_in_updates=burn_in, segment_plots=segment_plots,
+        truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
+        epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
+        seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
+        calibration_ages=ages,
+        turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
+        range_shares=tuple(float(v) for v in shares))
+
+
 def parse_params(tree: Mapping[str, Any]) -> Params:
     """Validate a params tree (as read from YAML) and return typed params; a key the parser
     never reads is an error, so that a misspelt key cannot leave a run on the old value."""
@@ -1041,6 +1199,8 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         tracker=_tracker(_get(tree, "tracker", "params"), windows, radar),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
+        association=_association(_get(tree, "association", "params")),
+        lstm_update=_lstm_update(_get(tree, "lstm_update", "params"), routes.splits, windows),
         evaluate=_evaluate(_get(tree, "evaluate", "params"), routes.splits),
         workers=_integer(_get(tree, "compute", "params"), "workers", "compute", 1),
     )

@@ -241,3 +241,16 @@ def test_a_site_at_the_antimeridian_is_plus_180(params_tree):
     """+180 and -180 are one meridian: written once, as +180."""
     params_tree["evaluate"]["sites"] = [{**SITE, "longitude_deg": 180}]
     assert parse_params(params_tree).evaluate.sites[0].longitude_deg == 180.0
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("double_threshold_hits", 5, "association.double_threshold_hits = 5: above the track history"),
+    ("tracks", "smoothed", "association.tracks = 'smoothed': must be one of"),
+    ("noise_m", [50.0, 0.0], "association.noise_m = [50.0, 0.0]: must be two positive numbers"),
+    ("scene_size", 8, "association.scene_size = 8: must be an integer >= 10"),
+    ("eval_bias_m", [], "association.eval_bias_m = []: must list non-negative numbers"),
+])
+def test_bad_association_value_is_named(params_tree, key, value, message):
+    params_tree["association"][key] = value
+    with pytest.raises(ParamError, match=re.escape(message)):
+        parse_params(params_tree)

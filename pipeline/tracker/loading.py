@@ -4,8 +4,8 @@ in `pipeline.tracker.registry`).
 A classical method needs only the tuned filters (`models/kalman_tuned.json`), so `track
 --method imm` works in a checkout without trained networks; a neural method needs the
 predictor and filter networks, `ae` the autoencoder too, `kalman_net` the network-scaled filter
-(`models/kalman_net.pt`). A network whose scaler differs from
-what params describe is refused (it would be fed differently scaled windows).
+(`models/kalman_net.pt`). A network whose scaler differs from what params describe is refused
+(it would be fed differently scaled windows).
 
 Errors (io.InputError, exit 2 from the command line) name the missing or bad file and the
 `dvc repro` stage that makes it.
@@ -14,20 +14,17 @@ Errors (io.InputError, exit 2 from the command line) name the missing or bad fil
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pipeline import classical_filters, io, materials
 from pipeline.params import Params
 from pipeline.tracker import registry
 from pipeline.tracker.models import Models
 
-if TYPE_CHECKING:
-    from pipeline.kalman_net import KalmanNet
-
 # piece -> (file in the models folder, the stage that makes it)
 PIECES = {"predictor": ("predictor.pt", "train_predictor"), "filter": ("filter.pt", "train_filter"),
           "autoencoder": ("autoencoder.pt", "train_autoencoder"),
           registry.TUNED_FILTERS: ("kalman_tuned.json", "tune_kalman"),
+          registry.LSTM_UPDATE: ("lstm_update.pt", "train_lstm_update"),
           registry.KALMAN_NET: ("kalman_net.pt", "train_kalman_net")}
 SCALER_OF_NETWORK = {"predictor": "states", "filter": "plots", "autoencoder": "plots"}
 
@@ -73,20 +70,16 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
             if kind is not None and kind not in filters:
                 raise io.InputError(f"{path}: has no tuned {kind} filter, which {name} runs (make it with "
                                     "`dvc repro tune_kalman`)")
+    lstm_update = None
+    if registry.LSTM_UPDATE in from_models_dir:
+        from pipeline import lstm_update as lstm_update_module  # imports torch: only when the method runs
+        lstm_update = lstm_update_module.load(from_models_dir[registry.LSTM_UPDATE])
+    kalman_net = None
+    if registry.KALMAN_NET in from_models_dir:
+        import torch
+
+        from pipeline import kalman_net as kalman_net_module  # imports torch: only when the method runs
+        torch.set_num_threads(1)  # as for the networks (`Models`): the tracker steps a few tracks at a time
+        kalman_net = kalman_net_module.load(from_models_dir[registry.KALMAN_NET])
     return Models(networks.get("predictor"), networks.get("filter"), networks.get("autoencoder"), filters,
-                  params.tracker.inference, _kalman_net(from_models_dir.get(registry.KALMAN_NET)))
-
-
-def _kalman_net(path: Path | None) -> KalmanNet | None:
-    """The network-scaled filter saved at `path` (None: no method needs it), for one-track steps on one thread."""
-    if path is None:
-        return None
-    import torch
-
-    from pipeline import kalman_net  # imports torch: only when a method runs the network-scaled filter
-    torch.set_num_threads(1)  # as for the networks (`Models`): the tracker's batches are a few tracks
-    try:
-        return kalman_net.load(path)
-    except (KeyError, TypeError, RuntimeError) as error:
-        raise io.InputError(f"{path}: not a network-scaled filter ({error}); make it again with "
-                            "`dvc repro train_kalman_net`") from None
+                  params.tracker.inference, lstm_update=lstm_update, kalman_net=kalman_net)

@@ -1,6 +1,6 @@
 """What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
-each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm) and the
-network-scaled filter."""
+each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm), the
+LSTM-update estimator (`pipeline.lstm_update`) and the network-scaled filter (`pipeline.kalman_net`)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from pipeline.classical_filters import FilterSettings
 if TYPE_CHECKING:
     from pipeline.inference import BatchNetwork
     from pipeline.kalman_net import KalmanNet
+    from pipeline.lstm_update import LSTMUpdate
     from pipeline.model_store import LoadedModel
 
 
@@ -25,6 +26,7 @@ class Models:
     autoencoder: LoadedModel | None = None
     filters: Mapping[str, FilterSettings] = field(default_factory=dict)
     backend: str = "onnx"
+    lstm_update: LSTMUpdate | None = None
     kalman_net: KalmanNet | None = None  # the network-scaled filter (issue 17), in eval mode
     runnable: dict[str, BatchNetwork] = field(init=False, repr=False)
 
@@ -32,10 +34,11 @@ class Models:
         loaded = {kind: model for kind, model in (("predictor", self.predictor), ("filter", self.filter),
                                                   ("autoencoder", self.autoencoder)) if model is not None}
         self.runnable = {}
-        if loaded:
+        if loaded or self.lstm_update is not None:
             import torch
 
-            from pipeline.inference import BatchNetwork  # imports torch: only when a network is loaded
             torch.set_num_threads(1)  # the tracker's batches are a few windows: threads only add contention
+        if loaded:
+            from pipeline.inference import BatchNetwork  # imports torch: only when a network is loaded
             self.runnable = {kind: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
                                                 self.backend) for kind, model in loaded.items()}

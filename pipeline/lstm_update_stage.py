@@ -1,0 +1,92 @@
+"""Stage `train_lstm_update`: the LSTM update on a Kalman prediction (`pipeline.lstm_update`), one MLflow run.
+
+Trained by `filter_training.descend` (Lightning) on the material of the network-scaled filter's
+stage: the split's target plots less the windows stage's hold-out segments, restarted at gaps and
+every `segment_plots` plots. Then the MC-dropout covariance is calibrated (for the estimate, and
+for the prediction to the tracker's gate, `tracker.kalman_gate_probability`) on the first
+`calibration_segments` training segments (`lstm_update.calibrate`), and the estimator is scored on
+the hold-out windows against the Nelder-Mead tuned CA filter it starts from and the tuned IMM
+(`models/kalman_tuned.json`) with `filter_holdout.compare_detailed`. Everything that can fail on bad
+input (params, material, the tuned filters, the tracking store) fails before training. Writes
+`models/lstm_update.pt` (`lstm_update.load`) and `reports/lstm_update.json`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict
+from pathlib import Path
+
+from pipeline import experiment_tracking, filter_holdout, io, kalman_net, lstm_update, materials, model_eval, simulate
+from pipeline.classical_filters import load_settings
+from pipeline.filter_training import DescentConfig, descend, training_segments
+from pipeline.lstm_update import LSTMUpdate, LSTMUpdateConfig
+from pipeline.params import Params
+from pipeline.torch_filters import FilterSpec
+
+log = logging.getLogger("pipeline")
+BASELINES = {"ca": "Kalman CA, Nelder-Mead tuned", "imm": "IMM (CV + CA), Nelder-Mead tuned"}
+
+
+def estimator_config(params: Params) -> LSTMUpdateConfig:
+    u = params.lstm_update
+    return LSTMUpdateConfig(u.hidden, u.dropout, u.mc_samples, u.detach_prediction, u.position_scale_m,
+                            u.velocity_scale_mps, u.acceleration_scale_mps2, u.time_scale_s, u.initial_alpha,
+                            u.initial_beta, u.floor_m, u.start_velocity_std_mps, u.calibration_ages)
+
+
+def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
+                          reports_dir: Path) -> None:
+    import torch
+
+    u = params.lstm_update
+    plots_path = simulated_dir / u.split / "plots.parquet"
+    holdout_table = io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA)
+    batch = training_segments(io.read_parquet(plots_path, simulate.PLOT_SCHEMA),
+                              holdout_table if u.split == params.routes.split("train").name else None, params.radar,
+                              u.restart_gap_s, u.burn_in_updates, params.tracker.kalman_gate_probability,
+                              params.tracker.young_track_plots, u.segment_plots, u.truncation_steps, "lstm_update")
+    tuned_path = models_dir / "kalman_tuned.json"
+    if not tuned_path.is_file():
+        raise io.InputError(f"{tuned_path}: file not found (run `dvc repro tune_kalman`)")
+    tuned = load_settings(tuned_path)
+    holdout = model_eval.holdout_plots(holdout_table, params.radar)
+    logger = experiment_tracking.lightning_logger(params, "train_lstm_update", "train-lstm-update", plots_path)
+    torch.set_num_threads(params.training.threads)
+    log.info("train_lstm_update: %d segments of up to %d plots (%d scored), MLflow run %s in %s", len(batch.times),
+             batch.times.shape[1], int(batch.scored.sum()), logger.run_id,
+             experiment_tracking.tracking_uri(params.training.tracking_uri))
+    try:
+        logger.log_hyperparams({f"lstm_update.{key}": value for key, value in asdict(u).items()})
+        torch.manual_seed(u.seed)
+        model = LSTMUpdate(estimator_config(params))
+        losses, seconds = descend(model, "lstm_update", batch,
+                                  DescentConfig(u.epochs, u.batch_segments, u.learning_rate, u.truncation_steps, u.seed,
+                                                params.training.deterministic), logger)
+        torch.manual_seed(u.seed)  # the calibration's dropout masks
+        factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)),
+                                        params.tracker.kalman_gate_probability)
+        runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": model}
+        for kind, label in BASELINES.items():
+            runs[label] = lambda rows, spec=FilterSpec.from_settings(tuned[kind]): rows.filtered(spec)
+        torch.manual_seed(u.seed)  # the hold-out's dropout masks
+        holdout_scores = filter_holdout.compare_detailed(holdout, params.radar, params.windows.filter_length, runs,
+                                                         u.turn_share, u.range_shares)
+        report = {"epoch_losses_m": losses, "seconds": seconds, "detach_prediction": u.detach_prediction,
+                  "calibration_by_age": {"estimate": factors[0].tolist(), "prediction": factors[1].tolist()},
+                  "holdout": holdout_scores}
+        kalman_net.save(model, models_dir / "lstm_update.pt", {"epoch_losses_m": losses})
+        io.write_json(report, reports_dir / "lstm_update.json")
+        ours = holdout_scores["filters"]["LSTM update"]
+        logger.log_metrics({"lstm_update.seconds": seconds,
+                            **{f"lstm_update.holdout_{key}": value for key, value in ours.items()
+                               if isinstance(value, float)}})
+        logger.experiment.log_artifact(logger.run_id, str(models_dir / "lstm_update.pt"))
+        logger.experiment.log_artifact(logger.run_id, str(reports_dir / "lstm_update.json"))
+    except BaseException:
+        logger.experiment.set_terminated(logger.run_id, "FAILED")
+        raise
+    logger.finalize("success")
+    log.info("train_lstm_update: %.1f m on training after %d epochs (%.0f s); hold-out %s", losses[-1], u.epochs,
+             seconds, ", ".join(f"{name} {v['mean_error_m']:.1f} m (turns {v['turn_mean_error_m']:.1f} m, ANEES "
+                                f"{v['anees']:.2f})" for name, v in holdout_scores["filters"].items()))

@@ -1,0 +1,103 @@
+"""The LSTM update on a Kalman prediction (`pipeline.lstm_update`, issue 18) as the tracker's `Estimator`.
+
+Every live track keeps, by slot, its MC-dropout ensemble (N copies of the 9-state CA estimate and
+of the LSTM's memory, `lstm_update.Ensemble`; copy 0 the point estimate) and the time it is at.
+A track's ensemble starts at its first plot (at the plot, still, memory empty) when the track is first predicted, as the
+Kalman estimator's filter does. `predict` moves the candidate tracks' ensembles to the plot's time
+in one batch (K N rows): the position is the point estimate's prediction and its covariance the
+calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factor), which the
+chi-square gate adds to the plot's covariance. `update` runs the LSTM step on the track's copies
+with the plot and its measurement covariance, and gives the point estimate and its calibrated
+covariance. Works in ECEF metres, seconds, like every estimator.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from pipeline.lstm_update import Ensemble, LSTMUpdate
+from pipeline.tracker.estimator import Prediction
+from pipeline.tracker.tracks import LiveTracks
+
+
+class Moved(NamedTuple):
+    """A prediction's state: the candidates' ensembles (K tracks) before the step, and their time steps (K,) s."""
+
+    ensemble: Ensemble
+    dt: torch.Tensor
+
+
+def _parts(ensemble: Ensemble) -> tuple[torch.Tensor, ...]:
+    return ensemble.x, ensemble.h, ensemble.c, ensemble.age
+
+
+class LSTMUpdateEstimator:
+    """One MC-dropout ensemble of the LSTM-update estimator per live track."""
+
+    gives_covariance = True
+
+    def __init__(self, model: LSTMUpdate, capacity: int = 64) -> None:
+        self.model = model.eval()
+        self.samples, self.sample = model.ensemble()
+        self.dtype = model.dtype
+        self.ensemble = Ensemble(*(torch.zeros(capacity, self.samples, size, dtype=self.dtype)
+                                   for size in (9, model.config.hidden, model.config.hidden)),
+                                 torch.zeros(capacity, dtype=torch.long))
+        self.time = np.zeros(capacity)
+        self.started = np.zeros(capacity, dtype=bool)
+
+    def start(self, tracks: LiveTracks, slot: int) -> None:
+        if slot >= len(self.time):
+            extra = len(tracks.tracks) - len(self.time)
+            self.ensemble = Ensemble(*(torch.cat([part, part.new_zeros((extra, *part.shape[1:]))])
+                                       for part in _parts(self.ensemble)))
+            self.time = np.concatenate([self.time, np.zeros(extra)])
+            self.started = np.concatenate([self.started, np.zeros(extra, dtype=bool)])
+        self.started[slot] = False
+
+    def _store(self, slots: np.ndarray, ensemble: Ensemble, time: np.ndarray | float) -> None:
+        index = torch.as_tensor(slots)
+        for part, value in zip(_parts(self.ensemble), _parts(ensemble)):
+            part[index] = value
+        self.time[slots] = time
+
+    def _start_ensembles(self, tracks: LiveTracks, slots: np.ndarray) -> None:
+        """Start the ensembles of the tracks at `slots` not started yet, at their first plots."""
+        fresh = slots[~self.started[slots]]
+        if len(fresh):
+            rows = [tracks.tracks[slot].rows[0] for slot in fresh]
+            z = torch.as_tensor(tracks.plots.position[rows], dtype=self.dtype)
+            self._store(fresh, self.model.started(z, self.samples), tracks.plots.time[rows])
+            self.started[fresh] = True
+
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
+        """The tracks' ensembles moved to `time`, unchanged: predicted positions (K, 3), calibrated
+        covariances (K, 3, 3), and the ensembles with their time steps as the state (`Moved`)."""
+        self._start_ensembles(tracks, slots)
+        index = torch.as_tensor(slots)
+        ensemble = Ensemble(*(part[index] for part in _parts(self.ensemble)))
+        dt = torch.as_tensor(time - self.time[slots], dtype=self.dtype)
+        with torch.no_grad():
+            position, covariance = self.model.covariance(self.model.predicted(ensemble.x, dt)[..., ::3], 1,
+                                                          ensemble.age)
+        return Prediction(position.numpy(), covariance.numpy(), Moved(ensemble, dt))
+
+    def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The track's ensemble stepped with plot `row` (its position and measurement covariance): the
+        point estimate's position (3,) and its calibrated covariance (3, 3)."""
+        plots = tracks.plots
+        if prediction is None:
+            prediction, index = self.predict(tracks, np.array([slot]), plots.time[row]), 0
+        moved, at = prediction.state, slice(index, index + 1)
+        z = torch.as_tensor(plots.position[row:row + 1], dtype=self.dtype)
+        R = torch.as_tensor(plots.covariance[row:row + 1], dtype=self.dtype)
+        with torch.no_grad():
+            after, _ = self.model.step(Ensemble(*(part[at] for part in _parts(moved.ensemble))), z, R, moved.dt[at],
+                                       self.sample)
+            position, covariance = self.model.covariance(after.x[..., ::3], 0, after.age)
+        self._store(np.array([slot]), after, plots.time[row])
+        return position[0].numpy(), covariance[0].numpy()

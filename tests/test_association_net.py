@@ -1,0 +1,59 @@
+"""The seed's association network: its decision rule, a tiny training that pairs a straight aircraft, saving."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline import association_net
+from pipeline.association_net import AssociationNet, AssociationNetConfig, TrainConfig, decide
+from pipeline.association_report import inputs_of
+from pipeline.association_scenes import make_scene
+from tests.association_fixtures import SETTING, straight_aircraft
+
+CONFIG = AssociationNetConfig(size=32, diameter_m=14142.0, feature_hidden=(8, 16, 36), decision_hidden=8)
+
+
+def test_decision_is_row_maximum_above_threshold_then_one_to_one():
+    probability = np.array([[0.9, 0.2, 0.1],    # row 0 takes column 0
+                            [0.95, 0.6, 0.0],   # row 1 wants column 0 too, with more: row 1 keeps it, row 0 loses
+                            [0.1, 0.3, 0.4]])   # row 2's best is under the threshold
+    assert decide(probability, 0.5).tolist() == [[1, 0]]
+    assert decide(np.zeros((0, 2)), 0.5).tolist() == []
+
+
+def train_tiny() -> AssociationNet:
+    """A few seconds of training on the seed's setting (4 epochs of 60 scenes)."""
+    torch.manual_seed(0)
+    model = AssociationNet(CONFIG)
+
+    def make_epoch(epoch: int):
+        return [inputs_of(make_scene(SETTING, 11, epoch * 60 + k), CONFIG) for k in range(60)]
+
+    association_net.train(model, make_epoch, TrainConfig(4, 60, 4, 0.01, 0, True))
+    return model
+
+
+@pytest.fixture(scope="module")
+def trained(one_torch_thread) -> AssociationNet:
+    return train_tiny()
+
+
+def test_training_twice_gives_the_same_weights(trained):
+    again = train_tiny().state_dict()
+    for name, weights in trained.state_dict().items():
+        torch.testing.assert_close(again[name], weights, rtol=0, atol=0)
+
+
+def test_trained_network_pairs_a_straight_aircraft_seen_without_bias(trained):
+    x1, p1, x2, p2 = straight_aircraft(np.array([[1000.0, -2000.0]]), np.array([[150.0, 80.0]]), np.zeros(2))
+    assert association_net.associate_network(trained, x1[-1], p1[-1], x2[-1], p2[-1], 0.5).tolist() == [[0, 0]]
+
+
+def test_saved_network_decides_the_same(trained, tmp_path):
+    association_net.save(trained, tmp_path / "association_net.pt")
+    loaded = association_net.load(tmp_path / "association_net.pt")
+    inputs = inputs_of(make_scene(SETTING, 12, 0), CONFIG)
+    np.testing.assert_array_equal(association_net.probabilities(loaded, inputs),
+                                  association_net.probabilities(trained, inputs))
