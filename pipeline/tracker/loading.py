@@ -3,8 +3,9 @@ in `pipeline.tracker.registry`).
 
 A classical method needs only the tuned filters (`models/kalman_tuned.json`), so `track
 --method imm` works in a checkout without trained networks; a neural method needs the
-predictor and filter networks, `ae` the autoencoder too. A network whose scaler differs from
-what params describe is refused (it would be fed differently scaled windows).
+predictor and filter networks, `ae` the autoencoder too, `kalman_net` the network-scaled filter
+(`models/kalman_net.pt`). A network whose scaler differs from what params describe is refused
+(it would be fed differently scaled windows).
 
 Errors (io.InputError, exit 2 from the command line) name the missing or bad file and the
 `dvc repro` stage that makes it.
@@ -23,7 +24,8 @@ from pipeline.tracker.models import Models
 PIECES = {"predictor": ("predictor.pt", "train_predictor"), "filter": ("filter.pt", "train_filter"),
           "autoencoder": ("autoencoder.pt", "train_autoencoder"),
           registry.TUNED_FILTERS: ("kalman_tuned.json", "tune_kalman"),
-          registry.LSTM_UPDATE: ("lstm_update.pt", "train_lstm_update")}
+          registry.LSTM_UPDATE: ("lstm_update.pt", "train_lstm_update"),
+          registry.KALMAN_NET: ("kalman_net.pt", "train_kalman_net")}
 SCALER_OF_NETWORK = {"predictor": "states", "filter": "plots", "autoencoder": "plots"}
 
 
@@ -72,5 +74,12 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
     if registry.LSTM_UPDATE in from_models_dir:
         from pipeline import lstm_update as lstm_update_module  # imports torch: only when the method runs
         lstm_update = lstm_update_module.load(from_models_dir[registry.LSTM_UPDATE])
+    kalman_net = None
+    if registry.KALMAN_NET in from_models_dir:
+        import torch
+
+        from pipeline import kalman_net as kalman_net_module  # imports torch: only when the method runs
+        torch.set_num_threads(1)  # as for the networks (`Models`): the tracker steps a few tracks at a time
+        kalman_net = kalman_net_module.load(from_models_dir[registry.KALMAN_NET])
     return Models(networks.get("predictor"), networks.get("filter"), networks.get("autoencoder"), filters,
-                  params.tracker.inference, lstm_update)
+                  params.tracker.inference, lstm_update=lstm_update, kalman_net=kalman_net)

@@ -1,6 +1,6 @@
 """What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
-each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm), and the
-LSTM-update estimator (`pipeline.lstm_update`)."""
+each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm), the
+LSTM-update estimator (`pipeline.lstm_update`) and the network-scaled filter (`pipeline.kalman_net`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pipeline.classical_filters import FilterSettings
 
 if TYPE_CHECKING:
     from pipeline.inference import BatchNetwork
+    from pipeline.kalman_net import KalmanNet
     from pipeline.lstm_update import LSTMUpdate
     from pipeline.model_store import LoadedModel
 
@@ -26,6 +27,7 @@ class Models:
     filters: Mapping[str, FilterSettings] = field(default_factory=dict)
     backend: str = "onnx"
     lstm_update: LSTMUpdate | None = None
+    kalman_net: KalmanNet | None = None  # the network-scaled filter (issue 17), in eval mode
     runnable: dict[str, BatchNetwork] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

@@ -4,9 +4,10 @@ A method is a name (what params' `evaluate.runs`, `track --method` and the repor
 label for the tables, a family (`neural`, `classical`, or `reference` for the oracle, which is
 given the true association and is run only as an evaluation reference), the pieces it loads
 (`pipeline.tracker.loading`: the `predictor`, `filter` and `autoencoder` networks, the tuned
-classical filters `kalman_tuned`), and `compose`, which builds its tracker
-(`pipeline.tracker.run.Composition`) from the loaded pieces, the tracker params, the window
-(metres: the VIA window, the young-track radius of every method) and a seed (MIA's sampling).
+classical filters `kalman_tuned`, the network-scaled filter `kalman_net`), and `compose`, which
+builds its tracker (`pipeline.tracker.run.Composition`) from the loaded pieces, the tracker
+params, the window (metres: the VIA window, the young-track radius of every method) and a seed
+(MIA's sampling).
 
 Params validation, the evaluate and compare stages, the tables and `track` read the names from
 here; nothing else lists methods. Adding a method is one entry here (and the modules of its
@@ -38,6 +39,7 @@ NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"
 NETWORKS = ("predictor", "filter")  # the estimator of every neural method
 TUNED_FILTERS = "kalman_tuned"
 LSTM_UPDATE = "lstm_update"  # the LSTM update on a Kalman prediction (models/lstm_update.pt)
+KALMAN_NET = "kalman_net"  # the network-scaled Kalman filter (issue 17)
 GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
@@ -131,6 +133,18 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
                         ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params)
 
 
+def _kalman_net(name: str, global_nearest: bool):
+    """The network-scaled filter with the chi-square gate on its own scales, nearest neighbour per plot or per scan."""
+    def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+        from pipeline.tracker.assigner import GlobalNearestPerScan
+        from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
+        estimator = KalmanNetEstimator(models.kalman_net)
+        return _composition(name, estimator, PlotScaledGate(estimator, params.kalman_gate_probability),
+                            params.young_track_plots, window_m, params,
+                            assigner=GlobalNearestPerScan() if global_nearest else None)
+    return compose
+
+
 def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     """The tuned IMM given the true association: every live track a candidate, none gated."""
     from pipeline.tracker.assigner import TrueAssociation
@@ -159,6 +173,9 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
     Method("lstm_update", "LSTM update", NEURAL, (LSTM_UPDATE,), _lstm_update, 3.0),
+    *(Method(name, label, NEURAL, (KALMAN_NET,), _kalman_net(name, gnn), cost)
+      for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 8.0),
+                                     ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 8.8))),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
