@@ -28,7 +28,7 @@ def run_train_association(params: Params, models_dir: Path, reports_dir: Path) -
     torch.set_num_threads(params.training.threads)
     logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="train_association", tracking_uri=uri,
                           tags={**experiment_tracking.run_tags("train_association"),
-                                experiment_tracking.SESSION_TAG: experiment_tracking.session(params),
+                                **experiment_tracking.session_tags(params),
                                 "mlflow.source.name": "python -m pipeline train-association"})
     log.info("train_association: %d epochs of %d fresh scenes, MLflow run %s in %s", a.epochs, a.scenes_per_epoch,
              logger.run_id, uri)

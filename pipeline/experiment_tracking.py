@@ -232,7 +232,7 @@ def lightning_logger(params: Params, stage: str, command: str, data: Path) -> ML
     uri = tracking_uri(params.training.tracking_uri)
     check_tracking_store(uri, params.training.experiment, stage)
     return MLFlowLogger(experiment_name=params.training.experiment, run_name=stage, tracking_uri=uri,
-                        tags={**run_tags(stage), "input_data_sha256": data_hash(data),
+                        tags={**run_tags(stage), **session_tags(params), "input_data_sha256": data_hash(data),
                               "mlflow.source.name": f"python -m pipeline {command}"})
 
 
@@ -251,6 +251,13 @@ def session(params: Params) -> str:
     return f"repro-{git_commit()[:12]}-{digest[:8]}"
 
 
+def session_tags(params: Params) -> dict[str, str]:
+    """The tags every stage's run carries to say which session made it: `pipeline.session`, and
+    DVC's experiment name inside `dvc exp run`."""
+    named = dvc_experiment()
+    return {SESSION_TAG: session(params), **({DVC_EXPERIMENT_TAG: named} if named else {})}
+
+
 @contextmanager
 def stage_run(uri: str, params: Params, stage: str, command: str,
               tags: dict[str, str] | None = None) -> Iterator[ActiveRun]:
@@ -262,9 +269,8 @@ def stage_run(uri: str, params: Params, stage: str, command: str,
 
     mlflow.set_tracking_uri(uri)
     mlflow.set_experiment(params.training.experiment)
-    named = dvc_experiment()
-    every_tag = {**run_tags(stage), SESSION_TAG: session(params), "mlflow.source.name": f"python -m pipeline {command}",
-                 **({DVC_EXPERIMENT_TAG: named} if named else {}), **(tags or {})}
+    every_tag = {**run_tags(stage), **session_tags(params), "mlflow.source.name": f"python -m pipeline {command}",
+                 **(tags or {})}
     with mlflow.start_run(run_name=stage, tags=every_tag) as run:
         yield run
 
