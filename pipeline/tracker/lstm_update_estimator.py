@@ -5,7 +5,8 @@ of the LSTM's memory, `lstm_update.Ensemble`; copy 0 the point estimate) and the
 A track's ensemble starts at its first plot (at the plot, still, memory empty) when the track is first predicted, as the
 Kalman estimator's filter does. `predict` moves the candidate tracks' ensembles to the plot's time
 in one batch (K N rows): the position is the point estimate's prediction and its covariance the
-calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factor), which the
+calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factors for the
+track's age and the scan periods predicted over), which the
 chi-square gate adds to the plot's covariance. `update` runs the LSTM step on the track's copies
 with the plot and its measurement covariance, and gives the point estimate and its calibrated
 covariance. Works in ECEF metres, seconds, like every estimator.
@@ -82,7 +83,7 @@ class LSTMUpdateEstimator:
         dt = torch.as_tensor(time - self.time[slots], dtype=self.dtype)
         with torch.no_grad():
             position, covariance = self.model.covariance(self.model.predicted(ensemble.x, dt)[..., ::3], 1,
-                                                          ensemble.age)
+                                                          ensemble.age, dt)
         return Prediction(position.numpy(), covariance.numpy(), Moved(ensemble, dt))
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
