@@ -144,7 +144,7 @@ def test_tracker_estimator_follows_the_sequence_run_and_gates_far_plots_out():
         with torch.no_grad():
             expected = model.eval()(batch).position[0].numpy()
         live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
-        estimator, gate = LSTMUpdateEstimator(model), ChiSquareGate(params.tracker.kalman_gate_probability)
+        estimator, gate = LSTMUpdateEstimator(model, 0), ChiSquareGate(params.tracker.kalman_gate_probability)
         slot = live.start(0)
         estimator.start(live, slot)
         rejected = 0
