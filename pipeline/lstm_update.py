@@ -40,7 +40,14 @@ prediction's likewise (the gate's). The two factors depend on the track's age a 
 start: the start spread fades with it) up to `calibration_ages`, older tracks taking the last;
 they are fitted after training on training material, age by age (`calibrate`): the estimate's so
 that its mean NEES is 3; the prediction's for the gate, so that the chi-square gate of probability
-p with S = c C + R lets through the share p of the training plots (its definition). A mean NIS of 3
+p with S = c C + R lets through the share p of the training plots (its definition), fitted on the
+predictions over one scan period (dt / `time_scale_s` rounds to 1). The prediction's factor is
+then multiplied by one for the scan periods k the prediction spans (2 .. `calibration_gaps`, longer
+gaps taking the last; 1 for k = 1), fitted the same way on all ages' predictions over k periods:
+the copies' spread grows linearly with dt (their velocities differ) while the error of a
+prediction over missed scans grows faster (the unmodelled acceleration's dt^2 / 2, and no LSTM
+correction in between), so one factor for every dt let 4-6 % of a tracked aircraft's plots out of
+the gate after a missed scan (issue 18, test split). A mean NIS of 3
 would not do: the LSTM's innovations have heavier tails than a Gaussian's, and such a gate rejects
 about 1 % of a track's own plots at every scan, where p = 0.999 promises 0.1 %. With dropout 0 one
 copy runs and the covariance is the floor.
@@ -83,12 +90,15 @@ class LSTMUpdateConfig:
     floor_m: float
     start_velocity_std_mps: float
     calibration_ages: int
+    calibration_gaps: int
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"lstm_update.dropout = {self.dropout!r}: must be in [0, 1)")
         if self.mc_samples < 1:
             raise ValueError(f"lstm_update.mc_samples = {self.mc_samples!r}: must be at least 1")
+        if self.calibration_gaps < 1:
+            raise ValueError(f"lstm_update.calibration_gaps = {self.calibration_gaps!r}: must be at least 1")
 
 
 @dataclass(frozen=True)
@@ -154,6 +164,8 @@ class LSTMUpdate(nn.Module):
         self.register_buffer("output_scale", torch.tensor(scales * 3, dtype=dtype))
         self.register_buffer("calibration", torch.ones(2, config.calibration_ages, dtype=dtype))  # estimate's,
         # prediction's, by age 1 .. calibration_ages
+        self.register_buffer("gap_calibration", torch.ones(config.calibration_gaps, dtype=dtype))  # the
+        # prediction's, by scan periods 1 .. calibration_gaps
 
     @property
     def dtype(self) -> torch.dtype:
@@ -215,13 +227,21 @@ class LSTMUpdate(nn.Module):
         correction = (frame.transpose(-1, -2) @ correction).reshape(B, N, STATES)
         return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1), ensemble.age + 1), prior
 
-    def covariance(self, samples: Tensor, which: int, age: Tensor) -> tuple[Tensor, Tensor]:
+    def scan_periods(self, dt: Tensor) -> Tensor:
+        """The scan periods (B,) a prediction over dt (B,) s spans: dt / `time_scale_s` rounded, in
+        [1, `calibration_gaps`] (the index + 1 of its `gap_calibration`)."""
+        return torch.round(dt.to(self.dtype) / self.config.time_scale_s).long().clamp(1, self.config.calibration_gaps)
+
+    def covariance(self, samples: Tensor, which: int, age: Tensor, dt: Tensor | None = None
+                   ) -> tuple[Tensor, Tensor]:
         """Point estimate (B, 3) and calibrated covariance (B, 3, 3) of the copies' positions (B, N, 3)
         of tracks of `age` (B,); `which`: 0 the estimate's calibration, 1 the prediction's (age: the
-        track's before the plot predicted)."""
+        track's before the plot predicted; dt (B,) s: the time predicted over, required)."""
         centre, covariance = spread(samples)
         floor = self.config.floor_m ** 2 * torch.eye(3, dtype=self.dtype)
         factor = self.calibration[which, age.clamp(1, self.config.calibration_ages) - 1]
+        if which == 1:
+            factor = factor * self.gap_calibration[self.scan_periods(dt) - 1]
         return centre, factor[:, None, None] * covariance + floor
 
     def ensemble(self) -> tuple[int, bool]:
@@ -242,13 +262,14 @@ class LSTMUpdate(nn.Module):
 @dataclass(frozen=True)
 class Run:
     """An ensemble run over B sequences of T steps: estimates and predictions (B, T, N, 3) ECEF m
-    (NaN-free; padding repeats the state), the tracks' ages (B, T) after and before each step, and
-    the last ensemble."""
+    (NaN-free; padding repeats the state), the tracks' ages (B, T) after and before each step, the
+    time steps predicted over (B, T) s, and the last ensemble."""
 
     estimates: Tensor
     predictions: Tensor
     ages: Tensor
     prior_ages: Tensor
+    dt: Tensor
     last: Ensemble
 
     def filtered(self, model: LSTMUpdate, batch: SequenceBatch) -> Filtered:
@@ -258,7 +279,7 @@ class Run:
         B, T, N, _ = self.estimates.shape
         position, covariance = model.covariance(self.estimates.reshape(B * T, N, 3), 0, self.ages.reshape(-1))
         predicted, predicted_covariance = model.covariance(self.predictions.reshape(B * T, N, 3), 1,
-                                                           self.prior_ages.reshape(-1))
+                                                           self.prior_ages.reshape(-1), self.dt.reshape(-1))
         innovation = batch.positions.reshape(B * T, 3) - predicted
         S = predicted_covariance + batch.covariances.reshape(B * T, 3, 3)
         distance = (innovation[:, None] @ torch_filters.inverse3(S)[0] @ innovation[:, :, None])[:, 0, 0]
@@ -297,33 +318,43 @@ def run_sequences(model: LSTMUpdate, batch: SequenceBatch, samples: int, sample:
         ages.append(after.age)
         ensemble = after
     return Run(torch.stack(estimates, 1), torch.stack(predictions, 1), torch.stack(ages, 1), torch.stack(prior_ages, 1),
-               ensemble)
+               dt, ensemble)
 
 
-def calibrate(model: LSTMUpdate, batch: SequenceBatch, gate_probability: float) -> Tensor:
-    """Fit the covariance factors on `batch`'s updates, age by age up to `calibration_ages` (the last
-    takes every older update; module docstring): the estimate's c = mean NEES of the uncalibrated
-    covariance / 3 (NEES scales as 1 / c), the prediction's `_gate_factor`; 1 for an age without
-    updates (a start's estimate). Sets and returns them (2, calibration_ages). Without copies
-    (dropout 0) all 1."""
+def calibrate(model: LSTMUpdate, batch: SequenceBatch, gate_probability: float) -> tuple[Tensor, Tensor]:
+    """Fit the covariance factors on `batch`'s updates (module docstring), age by age up to
+    `calibration_ages` (the last takes every older update): the estimate's c = mean NEES of the
+    uncalibrated covariance / 3 (NEES scales as 1 / c), the prediction's `_gate_factor` on the
+    predictions over one scan period; then the prediction's factor for each longer gap, over all ages
+    with their factors applied; 1 where there are no updates (a start's estimate). Sets and returns
+    them ((2, calibration_ages), (calibration_gaps,)). Without copies (dropout 0) all 1."""
     if model.config.dropout == 0:
-        return model.calibration
+        return model.calibration, model.gap_calibration
     with torch.no_grad():
         model.calibration.fill_(1.0)
+        model.gap_calibration.fill_(1.0)
         run = run_sequences(model, batch, *model.eval().ensemble())
         moving = batch.valid & ~batch.restart
+        periods = model.scan_periods(run.dt)
         floor = model.config.floor_m ** 2 * torch.eye(3, dtype=model.dtype)
         top = model.config.calibration_ages
         for age in range(1, top + 1):
             for which, (samples, ages) in enumerate(((run.estimates, run.ages), (run.predictions, run.prior_ages))):
-                rows = moving & ((ages == age) if age < top else (ages >= age))
+                rows = moving & ((ages == age) if age < top else (ages >= age)) & ((periods == 1) | (which == 0))
                 if rows.any():
                     centre, C = spread(samples[rows])
                     model.calibration[which, age - 1] = (
                         _nees_factor(batch.truth[rows] - centre, C + floor) if which == 0 else
                         _gate_factor(batch.positions[rows] - centre, C, floor + batch.covariances[rows],
                                      gate_probability))
-    return model.calibration
+        for gap in range(2, model.config.calibration_gaps + 1):
+            rows = moving & (periods == gap)
+            if rows.any():
+                centre, C = spread(run.predictions[rows])
+                by_age = model.calibration[1, run.prior_ages[rows].clamp(1, top) - 1]
+                model.gap_calibration[gap - 1] = _gate_factor(batch.positions[rows] - centre, by_age[:, None, None] * C,
+                                                              floor + batch.covariances[rows], gate_probability)
+    return model.calibration, model.gap_calibration
 
 
 def _distance(d: Tensor, S: Tensor) -> Tensor:

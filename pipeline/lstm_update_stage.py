@@ -32,7 +32,8 @@ def estimator_config(params: Params) -> LSTMUpdateConfig:
     u = params.lstm_update
     return LSTMUpdateConfig(u.hidden, u.dropout, u.mc_samples, u.detach_prediction, u.position_scale_m,
                             u.velocity_scale_mps, u.acceleration_scale_mps2, u.time_scale_s, u.initial_alpha,
-                            u.initial_beta, u.floor_m, u.start_velocity_std_mps, u.calibration_ages)
+                            u.initial_beta, u.floor_m, u.start_velocity_std_mps, u.calibration_ages,
+                            u.calibration_gaps)
 
 
 def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path, models_dir: Path,
@@ -64,7 +65,7 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
                                   DescentConfig(u.epochs, u.batch_segments, u.learning_rate, u.truncation_steps, u.seed,
                                                 params.training.deterministic), logger)
         torch.manual_seed(u.seed)  # the calibration's dropout masks
-        factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)),
+        factors, gap_factors = lstm_update.calibrate(model, batch.rows(slice(0, u.calibration_segments)),
                                         params.tracker.kalman_gate_probability)
         runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": model}
         for kind, label in BASELINES.items():
@@ -74,6 +75,7 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
                                                          u.turn_share, u.range_shares)
         report = {"epoch_losses_m": losses, "seconds": seconds, "detach_prediction": u.detach_prediction,
                   "calibration_by_age": {"estimate": factors[0].tolist(), "prediction": factors[1].tolist()},
+                  "prediction_calibration_by_scan_periods": gap_factors.tolist(),
                   "holdout": holdout_scores}
         kalman_net.save(model, models_dir / "lstm_update.pt", {"epoch_losses_m": losses})
         io.write_json(report, reports_dir / "lstm_update.json")

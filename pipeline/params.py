@@ -420,6 +420,7 @@ class LSTMUpdate:
     seed: int
     calibration_segments: int
     calibration_ages: int
+    calibration_gaps: int
     turn_share: float
     range_shares: tuple[float, ...]
 
@@ -1209,7 +1210,7 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
         truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
         epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
         seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
-        calibration_ages=ages,
+        calibration_ages=ages, calibration_gaps=_integer(tree, "calibration_gaps", p, 1),
         turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
         range_shares=tuple(float(v) for v in shares))
 

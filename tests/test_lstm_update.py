@@ -19,7 +19,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 CONFIG = LSTMUpdateConfig(hidden=8, dropout=0.0, mc_samples=8, detach_prediction=True, position_scale_m=1000.0,
                           velocity_scale_mps=400.0, acceleration_scale_mps2=10.0, time_scale_s=6.0, initial_alpha=0.5,
                           initial_beta=0.2, floor_m=1.0, start_velocity_std_mps=150.0,
-                          calibration_ages=4)
+                          calibration_ages=4, calibration_gaps=3)
 SIGMA_M = 60.0  # plot noise per axis
 
 
@@ -144,7 +144,7 @@ def test_tracker_estimator_follows_the_sequence_run_and_gates_far_plots_out():
         with torch.no_grad():
             expected = model.eval()(batch).position[0].numpy()
         live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
-        estimator, gate = LSTMUpdateEstimator(model), ChiSquareGate(params.tracker.kalman_gate_probability)
+        estimator, gate = LSTMUpdateEstimator(model, 0), ChiSquareGate(params.tracker.kalman_gate_probability)
         slot = live.start(0)
         estimator.start(live, slot)
         rejected = 0
@@ -175,6 +175,7 @@ def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):
     model = lstm_update.load(repository / "models" / "lstm_update.pt")
     assert model.config.mc_samples == 4 and torch.all(model.calibration > 0)
     assert model.calibration.shape == (2, model.config.calibration_ages)
+    assert model.gap_calibration.shape == (model.config.calibration_gaps,) and torch.all(model.gap_calibration > 0)
     report = json.loads((repository / "reports" / "lstm_update.json").read_text())
     assert len(report["epoch_losses_m"]) == 1
     scored = report["holdout"]["filters"]

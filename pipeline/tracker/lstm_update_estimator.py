@@ -5,10 +5,13 @@ of the LSTM's memory, `lstm_update.Ensemble`; copy 0 the point estimate) and the
 A track's ensemble starts at its first plot (at the plot, still, memory empty) when the track is first predicted, as the
 Kalman estimator's filter does. `predict` moves the candidate tracks' ensembles to the plot's time
 in one batch (K N rows): the position is the point estimate's prediction and its covariance the
-calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factor), which the
+calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factors for the
+track's age and the scan periods predicted over), which the
 chi-square gate adds to the plot's covariance. `update` runs the LSTM step on the track's copies
 with the plot and its measurement covariance, and gives the point estimate and its calibrated
-covariance. Works in ECEF metres, seconds, like every estimator.
+covariance. Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
+from the estimator's own random state, seeded from the run's seed (the scenario's), so a scenario's
+tracks do not depend on what ran before it in the process (torch's global generator is left as it was).
 """
 
 from __future__ import annotations
@@ -39,8 +42,10 @@ class LSTMUpdateEstimator:
 
     gives_covariance = True
 
-    def __init__(self, model: LSTMUpdate, capacity: int = 64) -> None:
+    def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64) -> None:
         self.model = model.eval()
+        self.random_state = torch.Generator().manual_seed(
+            int(np.random.SeedSequence(seed).generate_state(1)[0])).get_state()  # the dropout masks'
         self.samples, self.sample = model.ensemble()
         self.dtype = model.dtype
         self.ensemble = Ensemble(*(torch.zeros(capacity, self.samples, size, dtype=self.dtype)
@@ -82,7 +87,7 @@ class LSTMUpdateEstimator:
         dt = torch.as_tensor(time - self.time[slots], dtype=self.dtype)
         with torch.no_grad():
             position, covariance = self.model.covariance(self.model.predicted(ensemble.x, dt)[..., ::3], 1,
-                                                          ensemble.age)
+                                                          ensemble.age, dt)
         return Prediction(position.numpy(), covariance.numpy(), Moved(ensemble, dt))
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
@@ -95,9 +100,11 @@ class LSTMUpdateEstimator:
         moved, at = prediction.state, slice(index, index + 1)
         z = torch.as_tensor(plots.position[row:row + 1], dtype=self.dtype)
         R = torch.as_tensor(plots.covariance[row:row + 1], dtype=self.dtype)
-        with torch.no_grad():
+        with torch.no_grad(), torch.random.fork_rng(devices=[]):
+            torch.set_rng_state(self.random_state)
             after, _ = self.model.step(Ensemble(*(part[at] for part in _parts(moved.ensemble))), z, R, moved.dt[at],
                                        self.sample)
+            self.random_state = torch.get_rng_state()
             position, covariance = self.model.covariance(after.x[..., ::3], 0, after.age)
         self._store(np.array([slot]), after, plots.time[row])
         return position[0].numpy(), covariance[0].numpy()

@@ -129,7 +129,7 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance."""
     from pipeline.tracker.gate import ChiSquareGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update),
+    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed),
                         ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params)
 
 
