@@ -85,7 +85,7 @@ def scene_inputs(states1: np.ndarray, covariances1: np.ndarray, states2: np.ndar
                  config: AssociationNetConfig, true_pairs: np.ndarray | None = None) -> SceneInputs:
     """The network's inputs for two radars' tracks at a common time: states (n, d) / (m, d), covariances
     (n, d, d) / (m, d, d), ENU metres; `true_pairs` (K, 2) for training labels. TrackInputError on bad tracks
-    or more tracks than `config.size`."""
+    or more tracks than `config.size` (`scene_probabilities` reads larger scenes)."""
     features = pair_features(states1, covariances1, states2, covariances2)
     n, m = features.shape[:2]
     labels = np.zeros((n, m), dtype=np.float32)
@@ -125,11 +125,50 @@ def decide(probability: np.ndarray, threshold: float) -> np.ndarray:
     return np.stack([kept, best[kept]], axis=1).astype(np.int64)
 
 
+def neighbourhoods(positions1: np.ndarray, positions2: np.ndarray, size: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per radar 1 track i (n,): the rows (at most `size`, i first) of the radar 1 tracks nearest to it and the
+    columns (at most `size`) of the radar 2 tracks nearest to it, from horizontal positions (n, 2), (m, 2) m."""
+    out = []
+    for i, position in enumerate(positions1):
+        nearest = np.argsort(np.linalg.norm(positions1 - position, axis=1), kind="stable")
+        rows = np.concatenate([[i], nearest[nearest != i]])[:size]
+        columns = np.sort(np.argsort(np.linalg.norm(positions2 - position, axis=1), kind="stable")[:size])
+        out.append((rows, columns))
+    return out
+
+
+def scene_probabilities(model: AssociationNet, states1: np.ndarray, covariances1: np.ndarray, states2: np.ndarray,
+                        covariances2: np.ndarray) -> np.ndarray:
+    """(n, m) association probabilities of tracks at a common time (shapes as `scene_inputs`), for any n and m.
+
+    Up to `size` tracks per radar the scene is read whole (the seed's). Beyond, it does not fit the scene tensor
+    the network was trained on (ours): each radar 1 track i is read in its own scene of the `size` radar 1
+    tracks and the `size` radar 2 tracks nearest to it (`neighbourhoods`; a true partner is near i unless the
+    bias exceeds the neighbourhood's radius), and row i is taken from that scene; radar 2 tracks outside i's
+    neighbourhood get probability 0. All n scenes go through the network as one batch. The decision being
+    row-wise, each row still sees the distances to its competitors; what changes is the scene's extent."""
+    size = model.config.size
+    if len(states1) <= size and len(states2) <= size:
+        return probabilities(model, scene_inputs(states1, covariances1, states2, covariances2, model.config))
+    parts = neighbourhoods(np.asarray(states1)[:, :2], np.asarray(states2)[:, :2], size)
+    scenes = [scene_inputs(states1[rows], covariances1[rows], states2[columns], covariances2[columns], model.config)
+              for rows, columns in parts]
+    batch, features, index, _ = collate(scenes)
+    with torch.no_grad():
+        flat = torch.sigmoid(model(batch, features, index)).numpy()
+    probability = np.zeros((len(states1), len(states2)))
+    begin = 0
+    for i, ((_, columns), scene) in enumerate(zip(parts, scenes)):
+        probability[i, columns] = flat[begin:begin + scene.shape[1]]  # row 0 of the scene is track i
+        begin += len(scene.labels)
+    return probability
+
+
 def associate_network(model: AssociationNet, states1: np.ndarray, covariances1: np.ndarray, states2: np.ndarray,
                       covariances2: np.ndarray, threshold: float) -> np.ndarray:
-    """Pairs (K, 2) the trained network decides for tracks at a common time (shapes as `scene_inputs`)."""
-    return decide(probabilities(model, scene_inputs(states1, covariances1, states2, covariances2, model.config)),
-                  threshold)
+    """Pairs (K, 2) the trained network decides for tracks at a common time (shapes as `scene_inputs`), any
+    number of tracks (`scene_probabilities`)."""
+    return decide(scene_probabilities(model, states1, covariances1, states2, covariances2), threshold)
 
 
 @dataclass(frozen=True)

@@ -16,9 +16,12 @@ Per scene (the first `fusion.scenes` of `scenes.plan_scene`, planned around para
 4. GOSPA (`gospa.gospa`, cutoff and order of params `evaluate`) at each common time between the truth and
    each picture: radar 1's tracks alone, radar 2's alone, each method's fused picture, the oracle's. The
    truth at a time is the aircraft some radar has detected within the last `associate.max_age_s`
-   (positions from the route's trajectory, `simulate.trajectory_of`), in the common ENU frame, 3-D. And each
-   picture's track switches (`gospa.track_switches` over the GOSPA assignments: how often an aircraft's assigned
-   track changes identity; a fused track's identity is its pair, so a change of association is a switch).
+   (positions from the route's trajectory, `simulate.trajectory_of`), in the common ENU frame, 3-D. GOSPA is
+   also split into its localisation, missed and false shares (`gospa.shares_in_metres`, m, summing to it).
+   And each picture's track switches and tracks per truth (`gospa.track_switches`, `gospa.tracks_per_truth`
+   over the GOSPA assignments): a radar's track is its local track id, a fused picture's row its system track
+   number (`system_tracks`: it lives while either of its local tracks does), so both mean the same for a
+   fused picture as for one radar.
 Association is scored against the oracle's pairs: accuracy = correct / oracle pairs, false and missed pairs.
 """
 
@@ -34,6 +37,7 @@ import pyarrow as pa
 from pipeline import association_net, geodesy, gospa, scenes, simulate, table_association
 from pipeline.common_time_states import Frame, Snapshot, common_frame, common_snapshots
 from pipeline.params import FusionRadar, Params, Radar
+from pipeline.system_tracks import SystemTracks
 from pipeline.plot_table import NO_TARGET, PLOT_INPUT_SCHEMA, plot_table
 from pipeline.table_association import Decision
 from pipeline.track_command import track_recording
@@ -104,18 +108,13 @@ def truth_positions(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray],
     return np.asarray(ids, dtype=np.int64), (np.asarray(positions).reshape(-1, 3) - frame.origin) @ frame.rotation.T
 
 
-def fused_identity(ids: np.ndarray) -> np.ndarray:
-    """One id (R,) per picture row from its track ids (R, 2) (-1 where none): a fused track is its pair, so its
-    identity changes when the association does."""
-    return (ids[:, 0] + 1) * 2 ** 31 + (ids[:, 1] + 1)
-
-
 class PictureScore:
-    """A picture's GOSPA summed over common times and the (time, truth, identity) pairs its assignments made,
-    for the track switches (`gospa.track_switches`)."""
+    """A picture's GOSPA and its shares summed over common times and the (time, truth, identity) pairs its
+    assignments made, for the track switches and tracks per truth."""
 
     def __init__(self) -> None:
         self.gospa_sum = 0.0
+        self.shares_sum = np.zeros(len(gospa.PARTS))
         self.assigned: list[np.ndarray] = []
 
     def add(self, time_index: int, truth_ids: np.ndarray, truth: np.ndarray, identity: np.ndarray,
@@ -124,12 +123,16 @@ class PictureScore:
         distances = np.linalg.norm(truth[:, None] - estimates[None], axis=-1)
         parts, rows, columns = gospa.gospa_parts(distances, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
         self.gospa_sum += float(parts.sum() ** (1.0 / params.evaluate.gospa_order))
+        self.shares_sum += gospa.shares_in_metres(parts[None], params.evaluate.gospa_order)[0]
         self.assigned.append(np.column_stack([np.full(len(rows), time_index), truth_ids[rows], identity[columns]]))
 
-    def switches(self) -> int:
+    def continuity(self) -> np.ndarray:
+        """[track switches summed over truths, distinct (truth, track) pairs, truths ever assigned]."""
         assigned = np.concatenate(self.assigned) if self.assigned else np.zeros((0, 3), dtype=np.int64)
         truths = np.unique(assigned[:, 1])
-        return int(gospa.track_switches(assigned[:, 1], assigned[:, 0], assigned[:, 2], truths).sum())
+        switches = gospa.track_switches(assigned[:, 1], assigned[:, 0], assigned[:, 2], truths)
+        return np.array([switches.sum(), gospa.tracks_per_truth(assigned[:, 1], assigned[:, 2], truths).sum(),
+                         len(truths)], dtype=np.int64)
 
 
 def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
@@ -171,6 +174,7 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
     pictures = {name: PictureScore() for name in [*radar_names, *(f"fused_{m}" for m in decisions)]}
     counts: dict[str, np.ndarray] = {"times": np.array(len(snapshots)), "oracle_pairs": np.array(0),
                                      **{f"pairs_{m}": np.zeros(3, dtype=np.int64) for m in params.fusion.methods}}
+    numbering = {method: SystemTracks() for method in decisions}
     for index, snapshot in enumerate(snapshots):
         truth_ids, truth = truth_positions(routes, detected, snapshot.time, params.associate.max_age_s, frame)
         for name, ids, states in zip(radar_names, snapshot.ids, snapshot.states):
@@ -178,7 +182,8 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
         oracle = decisions[ORACLE][index].pairs
         for method, made in decisions.items():
             _, ids, states, _, _ = table_association.picture(snapshot, made[index], params.associate.fusion_criterion)
-            pictures[f"fused_{method}"].add(index, truth_ids, truth, fused_identity(ids), states[:, :3], params)
+            system_numbers = numbering[method].number(snapshot.scenario_id, ids)
+            pictures[f"fused_{method}"].add(index, truth_ids, truth, system_numbers, states[:, :3], params)
             if method != ORACLE:
                 counts[f"pairs_{method}"] += _pair_counts(made[index].pairs, oracle)
         counts["oracle_pairs"] += len(oracle)
@@ -188,17 +193,20 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
 
 
 def fusion_report(params: Params, models_dir: Path, model: association_net.AssociationNet | None) -> dict:
-    """reports/fusion.json: per picture the mean GOSPA (m) per common time and the track switches (summed over
-    scenes); each fused picture's GOSPA relative to the better radar's; per method association accuracy, false
+    """reports/fusion.json: per picture the mean GOSPA (m) per common time and its localisation, missed and false
+    shares (m), the track switches (summed over scenes) and tracks per truth (mean over the truths of every
+    scene); each fused picture's GOSPA relative to the better radar's; per method association accuracy, false
     and missed pairs against the oracle's."""
     gospa_sums: dict[str, float] = {}
-    switches: dict[str, int] = {}
+    shares: dict[str, np.ndarray] = {}
+    continuity: dict[str, np.ndarray] = {}
     totals: dict[str, np.ndarray] = {}
     for scene_id in range(params.fusion.scenes):
         pictures, counts = scene_scores(params, scene_id, models_dir, model)
         for name, score in pictures.items():
             gospa_sums[name] = gospa_sums.get(name, 0.0) + score.gospa_sum
-            switches[name] = switches.get(name, 0) + score.switches()
+            shares[name] = shares.get(name, 0.0) + score.shares_sum
+            continuity[name] = continuity.get(name, 0) + score.continuity()
         for key, value in counts.items():
             totals[key] = totals.get(key, 0) + value
     times = max(int(totals["times"]), 1)
@@ -210,7 +218,11 @@ def fusion_report(params: Params, models_dir: Path, model: association_net.Assoc
                             "missed_pairs": int(totals[f"pairs_{method}"][2])} for method in params.fusion.methods}
     return {"scenes": params.fusion.scenes, "common_times": int(totals["times"]),
             "oracle_pairs": int(totals["oracle_pairs"]), "gospa_m": mean_gospa,
-            "track_switches": dict(sorted(switches.items())),
+            "gospa_shares_m": {name: dict(zip(gospa.PARTS, (shares[name] / times).tolist()))
+                               for name in sorted(shares)},
+            "track_switches": {name: int(continuity[name][0]) for name in sorted(continuity)},
+            "tracks_per_truth": {name: float(continuity[name][1]) / max(int(continuity[name][2]), 1)
+                                 for name in sorted(continuity)},
             "fused_gospa_vs_better_radar": {name: value / better for name, value in mean_gospa.items()
                                             if name.startswith("fused_")},
             "association": association}

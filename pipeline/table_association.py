@@ -9,8 +9,9 @@ heights of surveillance radars are poor and the chi-square gates of params `asso
 - `bias_robust`: `bias_robust_association.associate_bias_robust`; its offset estimate is removed from the
   second user's positions before fusing (and from its unpaired tracks: the picture is in the first user's
   registration);
-- `network`: the trained network (`association_net.associate_network`), at most `association.scene_size`
-  tracks per user at a time (TrackInputError beyond).
+- `network`: the trained network (`association_net.associate_network`); beyond `association.scene_size` tracks
+  of a user at a time, each first-user track is read in the scene of its nearest tracks
+  (`association_net.scene_probabilities`).
 Each pair's `statistic` is the chi-square statistic Δᵀ (P1 + P2)⁻¹ Δ of the pair at that time (d = 4, after the
 offset's removal for bias_robust).
 

@@ -57,3 +57,21 @@ def test_saved_network_decides_the_same(trained, tmp_path):
     inputs = inputs_of(make_scene(SETTING, 12, 0), CONFIG)
     np.testing.assert_array_equal(association_net.probabilities(loaded, inputs),
                                   association_net.probabilities(trained, inputs))
+
+
+def test_neighbourhoods_hold_the_track_first_and_at_most_size_tracks():
+    positions1 = np.array([[0.0, 0.0], [0.0, 0.0], [5000.0, 0.0], [100.0, 0.0]])  # rows 0 and 1 coincide
+    positions2 = np.array([[90.0, 0.0], [4900.0, 0.0], [-20.0, 0.0]])
+    parts = association_net.neighbourhoods(positions1, positions2, 2)
+    assert [rows.tolist() for rows, _ in parts] == [[0, 1], [1, 0], [2, 3], [3, 0]]
+    assert [columns.tolist() for _, columns in parts] == [[0, 2], [0, 2], [0, 1], [0, 2]]
+
+
+def test_network_pairs_more_aircraft_than_its_scene_size(trained):
+    grid = np.stack(np.meshgrid(np.arange(8), np.arange(5)), -1).reshape(-1, 2) * 3000.0 - 10000.0  # 40 > 32
+    velocities = np.tile([[150.0, 80.0], [-120.0, 60.0]], (20, 1))
+    x1, p1, x2, p2 = straight_aircraft(grid, velocities, np.zeros(2))
+    pairs = association_net.associate_network(trained, x1[-1], p1[-1], x2[-1], p2[-1], 0.5)
+    assert pairs.tolist() == [[k, k] for k in range(40)]
+    probability = association_net.scene_probabilities(trained, x1[-1], p1[-1], x2[-1], p2[-1])
+    assert probability.shape == (40, 40)

@@ -35,6 +35,11 @@ def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_
     assert report["fused_gospa_vs_better_radar"]["fused_oracle"] < 1.0
     assert set(report["track_switches"]) == set(report["gospa_m"])
     assert all(count >= 0 for count in report["track_switches"].values())
+    assert report["track_switches"]["fused_oracle"] <= report["track_switches"]["radar_1"] + \
+        report["track_switches"]["radar_2"]  # system tracks: a fused track lives while either local track does
+    assert all(value >= 1.0 for value in report["tracks_per_truth"].values())
+    for name, shares in report["gospa_shares_m"].items():
+        assert sum(shares.values()) == pytest.approx(report["gospa_m"][name])
 
 
 def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():
@@ -63,15 +68,15 @@ def test_bad_fusion_radars_name_the_entry_key_and_value(radars, named):
         tf.make_params({"fusion.radars": radars})
 
 
-def test_a_picture_score_counts_gospa_and_a_switch_of_identity():
-    """One aircraft at the origin, held by identity 5 then by identity 6 (say, a pair that the association
-    broke): GOSPA is the localisation error at each time, and the change is one switch."""
+def test_a_picture_score_counts_gospa_its_shares_and_a_switch_of_identity():
+    """One aircraft at the origin, held by identity 5 then by identity 6 (say, a system track that ended):
+    GOSPA is the localisation error at each time, all of it localisation, and the change is one switch, two
+    tracks for one truth."""
     params = tf.make_params()
     score = radar_fusion.PictureScore()
     truth = np.zeros((1, 3))
     score.add(0, np.array([3]), truth, np.array([5]), np.array([[30.0, 40.0, 0.0]]), params)
     score.add(1, np.array([3]), truth, np.array([6]), np.array([[0.0, 10.0, 0.0]]), params)
     assert score.gospa_sum == pytest.approx(50.0 + 10.0)
-    assert score.switches() == 1
-    ids = np.array([[4, 7], [4, -1], [-1, 7]])
-    assert len(set(radar_fusion.fused_identity(ids).tolist())) == 3
+    np.testing.assert_allclose(score.shares_sum, [60.0, 0.0, 0.0])
+    assert score.continuity().tolist() == [1, 2, 1]
