@@ -32,6 +32,32 @@ class InputError(ValueError):
     """An input file is missing or malformed; the message names the file and the column."""
 
 
+def _same_file(first: Path, second: Path) -> bool:
+    """Whether two paths name one file: the same resolved path, or (both existing) the same inode,
+    so a symbolic or hard link to an input counts as the input."""
+    if first.resolve() == second.resolve():
+        return True
+    try:
+        return os.path.samefile(first, second)
+    except OSError:
+        return False
+
+
+def check_outputs_apart(inputs: dict[str, list[Path]], outputs: dict[str, Path]) -> None:
+    """InputError if an output would replace an input or another output, before anything is read.
+
+    `inputs` and `outputs` map what the user calls each file (an option such as '--plots') to its
+    path(s). Writing is atomic, so an output named like an input would silently replace the user's
+    file with the command's result (`track --out plots.parquet`), and two outputs of one path would
+    leave only the last written."""
+    named = [(option, Path(path)) for option, paths in inputs.items() for path in paths]
+    for number, (option, path) in enumerate(outputs.items()):
+        for other, earlier in [*named, *list(outputs.items())[:number]]:
+            if _same_file(Path(path), Path(earlier)):
+                raise InputError(f"{path}: {option} names the same file as {other} ({earlier}); writing it would "
+                                 f"replace that file: give {option} another path")
+
+
 def _mode_for(destination: Path) -> int:
     try:
         return stat.S_IMODE(destination.stat().st_mode)

@@ -238,6 +238,37 @@ def test_bad_input_exits_2_and_leaves_an_earlier_output_alone(params, tmp_path, 
     assert out.read_bytes() == b"earlier run" and summary.read_text() == "{}"
 
 
+@pytest.mark.parametrize("out_as, named", [("plots", "--out names the same file as --plots"),
+                                            ("radar", "--out names the same file as --radar"),
+                                            ("summary of plots", "--out's summary names the same file as --plots")])
+def test_an_output_that_would_replace_an_input_is_refused(params, tmp_path, filters_only, caplog, out_as, named):
+    """`--out` naming the recording (or the radar description, or an input that `--out`'s summary,
+    `<stem>.summary.json`, would replace) exits 2 before reading, and the user's files keep their bytes."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    plots_path, radar_path = tf.write_recording(tmp_path / "recording", plots, radars)
+    if out_as == "summary of plots":
+        plots_path = plots_path.rename(plots_path.with_name("tracks.summary.json"))
+        out = plots_path.with_name("tracks.parquet")
+    else:
+        out = {"plots": plots_path, "radar": radar_path}[out_as]
+    before = {path: path.read_bytes() for path in (plots_path, radar_path)}
+    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
+    assert cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
+                     "--models", str(filters_only), "--method", "kalman_cv", "--out", str(out)]) == 2
+    assert named in caplog.text, caplog.text
+    assert {path: path.read_bytes() for path in before} == before
+    assert sorted(p.name for p in plots_path.parent.iterdir()) == sorted(p.name for p in before)
+
+
+def test_asterix_export_refuses_to_write_over_its_plots(params, tmp_path, caplog):
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
+    before = plots_path.read_bytes()
+    assert cli.main(["asterix-export", "--plots", str(plots_path), "--radar", str(radar_path), "--scenario", "7",
+                     "--out", str(plots_path)]) == 2
+    assert "--out names the same file as --plots" in caplog.text and plots_path.read_bytes() == before
+
+
 def test_a_repeated_plot_id_names_the_value_and_its_rows(params, tmp_path):
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(7))
     ids = plots.column("plot_id").to_numpy()
