@@ -73,6 +73,11 @@ def test_default_params_load():
     # GOSPA: a positive cutoff, and an order for which it is a metric
     ("evaluate.gospa_cutoff_m", 0.0, ["evaluate.gospa_cutoff_m", "0.0"]),
     ("evaluate.gospa_order", 0.5, ["evaluate.gospa_order = 0.5", "[1.0, inf]"]),
+    # the fusion stage's local tracker must give covariances (a network's tracks would stop it after a scene)
+    ("fusion.tracker", "via", ["fusion.tracker = 'via'", "'imm_gnn'", "radius, via, mia, ae give none"]),
+    ("fusion.methods", ["statistical", "statistical"], ["fusion.methods", "distinct"]),
+    # a share of the range is at most all of it
+    ("lstm_update.range_shares", [0.05, 1.5], ["lstm_update.range_shares = [0.05, 1.5]", "(0, 1]"]),
 ])
 def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
     """An invalid value raises ParamError whose message names the key and the value."""
