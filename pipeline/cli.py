@@ -280,7 +280,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
+    examples = "\n".join(f"  {example}" for _, _, example, _ in COMMANDS.values())
+    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__,
+                                     epilog="examples (one per command; `<command> --help` gives its options):\n"
+                                            + examples, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (handler, summary, example, options) in COMMANDS.items():

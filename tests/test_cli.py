@@ -27,6 +27,16 @@ def test_every_command_has_help_with_an_example(command: str) -> None:
     assert "example:" in result.stdout and f"python -m pipeline {command}" in result.stdout
 
 
+def test_the_top_level_help_shows_an_example_of_every_command() -> None:
+    """`python -m pipeline --help` lists each command with a line that calls it, so a new user sees how to
+    start without opening each command's help."""
+    result = run_pipeline("--help")
+    assert result.returncode == 0, result.stderr
+    examples = result.stdout.split("examples (one per command")[1]
+    for command in COMMANDS:
+        assert f"python -m pipeline {command} " in examples, command
+
+
 def test_invalid_param_names_key_and_value_and_writes_nothing(tmp_path: Path) -> None:
     """A bad radar latitude stops the stage before any output exists."""
     tree = tiny_params_tree()
