@@ -367,6 +367,23 @@ def test_twins_of_earlier_plots_are_dropped_and_counted_beside_what_the_reader_s
     assert not np.isin(np.arange(90000, 90005), table.plot_id).any() and 90009 in table.plot_id
 
 
+def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_path, filters_only):
+    """Radar 1's plots given again under radar id 3, described at radar 1's site (one feed delivered under two
+    ids): the copies are dropped and counted as duplicates, so the tracks are those of radar 1's plots alone,
+    not the extra confirmed clutter of each plot associated with its own copy."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(13))
+    alone = plots.filter(pa.compute.equal(plots.column("radar_id"), 1))
+    copies = with_column(with_column(alone, "radar_id", np.full(alone.num_rows, 3, np.int32)), "plot_id",
+                         alone.column("plot_id").to_numpy() + 100000)
+    both = pa.concat_tables([radars.slice(0, 1), with_column(radars.slice(0, 1), "radar_id", np.array([3]))])
+    assert track_command(tmp_path / "once", filters_only, "kalman_cv", alone, radars.slice(0, 1)) == 0
+    assert track_command(tmp_path / "twice", filters_only, "kalman_cv", pa.concat_tables([alone, copies]), both) == 0
+    once = pq.read_table(tmp_path / "once" / "tracks.parquet").to_pandas()
+    assert pq.read_table(tmp_path / "twice" / "tracks.parquet").to_pandas().equals(once)
+    summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
+    assert summary["skipped"] == {"duplicate plot": alone.num_rows} and summary["radars"]["3"]["plots"] == 0
+
+
 def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_path, filters_only):
     """Every plot given twice, each twin right after its plot with its own plot id: the same track
     file as the recording once, and the summary counts the twins."""
