@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import baselines, cli, geodesy, io, plot_table
+from pipeline import association_net, association_report, baselines, cli, geodesy, io, model_store, plot_table
 from pipeline import track_command as track_command_module
 from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
@@ -146,6 +146,34 @@ def test_a_method_whose_model_is_missing_names_the_file_and_stage(params, tmp_pa
     assert track_command(tmp_path, filters_only, method, plots, radars) == 2
     assert f"{filters_only / missing}: file not found" in caplog.text and f"dvc repro {stage}" in caplog.text
     assert not (tmp_path / "tracks.parquet").exists()
+
+
+def association_weights(params) -> dict:
+    """An association network's config and weights (untrained): a saved network, but not of the tracker's kinds."""
+    model = association_net.AssociationNet(association_report.network_config(params.association))
+    return {"config": dataclasses.asdict(model.config), "state_dict": model.state_dict()}
+
+
+@pytest.mark.parametrize("damage", ["truncated", "another network", "no weights"])
+@pytest.mark.parametrize("load, file, stage", [
+    (lambda folder, params: load_models(folder, params, ["lstm_update"]), "lstm_update.pt", "train_lstm_update"),
+    (lambda folder, params: load_models(folder, params, ["kalman_net"]), "kalman_net.pt", "train_kalman_net"),
+    (lambda folder, params: association_net.load(folder / "association_net.pt"), "association_net.pt",
+     "train_association"),
+])
+def test_a_damaged_or_foreign_network_file_names_the_file_and_stage(params, tmp_path, load, file, stage, damage):
+    """A network file cut short (a copy interrupted), holding another network (files swapped by hand), or a
+    config without weights: an InputError (exit 2) naming the file, never a torch traceback."""
+    bundle = association_weights(params)
+    if file == "association_net.pt" and damage == "another network":
+        bundle = {"config": {"base": "cv", "cell": "gru"}, "state_dict": {}}  # a network-scaled filter's config
+    model_store.write_bundle({"config": bundle["config"]} if damage == "no weights" else bundle, tmp_path / file)
+    if damage == "truncated":
+        (tmp_path / file).write_bytes((tmp_path / file).read_bytes()[:300])
+    with pytest.raises(io.InputError) as error:
+        load(tmp_path, params)
+    assert str(error.value).startswith(f"{tmp_path / file}: ")
+    assert damage == "truncated" or f"dvc repro {stage}" in str(error.value)
 
 
 def test_a_classical_method_without_tuned_filters_names_the_file_and_stage(params, tmp_path):
