@@ -247,7 +247,8 @@ def _first_of_twins(plots: pa.Table, radars: Mapping[int, Radar]) -> np.ndarray:
             site_of[np.searchsorted(ids, plots.column("radar_id").to_numpy())],
             *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg", "altitude_m"))]
     order = np.lexsort(keys[::-1])  # stable: of equal rows, the earliest comes first
-    return np.sort(order[np.r_[True, input_checks.changes(order, keys)]])
+    first = np.r_[True, input_checks.changes(order, keys)][:len(order)]  # no row of an empty recording
+    return np.sort(order[first])
 
 
 def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str) -> None:

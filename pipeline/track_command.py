@@ -171,6 +171,9 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
         recording = plot_table.read_parquet_recording(plots_path, radar_path, params.radar)
     summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
+    if not len(recording):
+        log.warning("track: no plots to track in %s: the output will hold no track update",
+                    plots_path or ", ".join(map(str, asterix_paths)))
     with io.parquet_chunks(out, TRACK_SCHEMA) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir):

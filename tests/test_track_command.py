@@ -297,6 +297,18 @@ def test_asterix_export_refuses_to_write_over_its_plots(params, tmp_path, caplog
     assert "--out names the same file as --plots" in caplog.text and plots_path.read_bytes() == before
 
 
+def test_a_recording_without_plots_gives_an_empty_track_table_and_says_so(params, tmp_path, filters_only, caplog):
+    """No plots (a user's selection that matched nothing) once ended in an IndexError traceback (exit 1): now an
+    empty table of the track schema, a summary of zeros and a warning."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    assert track_command(tmp_path, filters_only, "kalman_cv", plots.slice(0, 0), radars) == 0
+    tracks = pq.read_table(tmp_path / "tracks.parquet")
+    assert tracks.num_rows == 0 and tracks.schema.equals(track_command_module.TRACK_SCHEMA)
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    assert summary["plots_tracked"] == summary["track_updates"] == summary["confirmed_tracks"] == 0
+    assert "no plots to track" in caplog.text
+
+
 def test_a_repeated_plot_id_names_the_value_and_its_rows(params, tmp_path):
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(7))
     ids = plots.column("plot_id").to_numpy()
