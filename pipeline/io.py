@@ -232,8 +232,9 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
         if not column.type.equals(field.type):
             try:
                 column = column.cast(field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type}") from None
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
+                                 f"({_first_line(error)})") from None
         if not field.nullable and column.null_count:
             raise InputError(f"{path}: column '{field.name}' has {column.null_count} missing values")
         if pa.types.is_floating(field.type) and not field.nullable:
@@ -243,6 +244,10 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
                                  f"(first at row {int(np.argmax(nan))})")
         columns[field.name] = column
     return pa.Table.from_arrays(list(columns.values()), schema=schema)
+
+
+def _first_line(error: Exception) -> str:
+    return str(error).splitlines()[0] if str(error) else type(error).__name__
 
 
 READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
@@ -290,6 +295,7 @@ class _NumericColumn:
         self.filled = self.nulls = self.nan = 0
         self.first_nan: int | None = None
         self.wrong_type: pa.DataType | None = None
+        self.cast_error = ""  # Arrow's reason, naming the value that does not fit (an int64 id past int32)
 
     def add(self, column: pa.Array) -> None:
         """The column's next batch."""
@@ -299,8 +305,8 @@ class _NumericColumn:
         if not column.type.equals(self.field.type):
             try:
                 column = column.cast(self.field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-                self.wrong_type = column.type
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+                self.wrong_type, self.cast_error = column.type, _first_line(error)
                 return
         self.nulls += column.null_count
         values = column.fill_null(0).to_numpy(zero_copy_only=False) if column.null_count else column.to_numpy()
@@ -317,7 +323,7 @@ class _NumericColumn:
         """The column as one Arrow array, or the error `read_parquet` gives for it."""
         name, kind = self.field.name, self.field.type
         if self.wrong_type is not None:
-            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind}")
+            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind} ({self.cast_error})")
         if not self.field.nullable and self.nulls:
             raise InputError(f"{path}: column '{name}' has {self.nulls} missing values")
         if self.nan:

@@ -512,13 +512,13 @@ def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_pa
     assert (tmp_path / "tracks.parquet").read_bytes() == b"earlier"
 
 
-@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "missing"])
+@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "overflow", "missing"])
 def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(params, tmp_path, monkeypatch,
                                                                                 change):
     """`io.read_numeric_parquet`, reading 7 rows at a time, against `io.read_parquet` on the same
     file: the same values (and nulls), or the same error naming the same first row and count (a NaN
-    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, no
-    range column)."""
+    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, radar ids
+    as int64 with one past int32 at row 5, no range column). A value that cannot be converted is named."""
     plots, _, _ = two_radar_recording(params, np.random.default_rng(6))
     if change == "nan":
         plots = with_values(plots, "range_m", [9, 20], np.nan)
@@ -530,6 +530,10 @@ def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(
         text = plots.column("altitude_m").cast(pa.string()).to_pylist()
         text[12] = "high"
         plots = plots.set_column(plots.schema.get_field_index("altitude_m"), "altitude_m", pa.array(text))
+    elif change == "overflow":
+        ids = plots.column("radar_id").to_numpy().astype(np.int64)
+        ids[5] = 2**40
+        plots = plots.set_column(plots.schema.get_field_index("radar_id"), "radar_id", pa.array(ids))
     elif change == "missing":
         plots = plots.drop_columns(["range_m"])
     path = tmp_path / "plots.parquet"
@@ -544,3 +548,4 @@ def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(
     with pytest.raises(io.InputError) as got:
         io.read_numeric_parquet(*arguments)
     assert str(got.value) == str(expected.value)
+    assert {"type": "'high'", "overflow": str(2**40)}.get(change, "") in str(got.value)
