@@ -1335,6 +1335,8 @@ def load_params_tree(path: str | Path = "params.yaml") -> dict[str, Any]:
         tree = yaml.load(path.read_text(), Loader=ParamsLoader)
     except FileNotFoundError:
         raise ParamError(f"{path}: params file not found") from None
+    except (OSError, UnicodeDecodeError) as error:  # a folder, an unreadable file, a binary file
+        raise ParamError(f"{path}: not a readable params file ({type(error).__name__}: {error})") from None
     except yaml.YAMLError as error:
         raise ParamError(f"{path}: not valid YAML ({error})") from None
     if not isinstance(tree, Mapping):

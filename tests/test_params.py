@@ -125,6 +125,18 @@ def test_load_params_names_the_file(params_tree, tmp_path):
         load_params(tmp_path / "missing.yaml")
 
 
+@pytest.mark.parametrize("given", ["folder", "binary"])
+def test_a_params_path_that_is_not_a_text_file_is_named(tmp_path, given):
+    """`--params` naming a folder or a Parquet file (a slip of the shell's completion) was a traceback (exit 1)."""
+    path = tmp_path / "params.yaml"
+    if given == "folder":
+        path.mkdir()
+    else:
+        path.write_bytes(b"PAR1\x15\x04\xff\xfe")
+    with pytest.raises(ParamError, match=re.escape(f"{path}: not a readable params file")):
+        load_params(path)
+
+
 def test_learning_rate_as_dvc_writes_it_is_a_float(params_tree, tmp_path):
     """`dvc exp run -S training.predictor.learning_rate=0.000001` writes `learning_rate: 1e-06`
     (YAML 1.2: no point before the exponent), which YAML 1.1 would read as a string."""
