@@ -43,19 +43,27 @@ def _same_file(first: Path, second: Path) -> bool:
         return False
 
 
-def check_outputs_apart(inputs: dict[str, list[Path]], outputs: dict[str, Path]) -> None:
-    """InputError if an output would replace an input or another output, before anything is read.
+def check_outputs(inputs: dict[str, list[Path]], outputs: dict[str, Path]) -> None:
+    """InputError, before anything is read, for an output that could not be written or would destroy a file.
 
     `inputs` and `outputs` map what the user calls each file (an option such as '--plots') to its
-    path(s). Writing is atomic, so an output named like an input would silently replace the user's
-    file with the command's result (`track --out plots.parquet`), and two outputs of one path would
-    leave only the last written."""
+    path(s). Refused: an output that names an input (writing is atomic, so `track --out plots.parquet`
+    would silently replace the user's recording with its result) or an earlier output (only the last
+    written would be left); an output that is a folder, or whose nearest existing folder is not a
+    writable folder: found only at the rename, after all the work, and after any output written
+    before it (a summary without its tracks)."""
     named = [(option, Path(path)) for option, paths in inputs.items() for path in paths]
     for number, (option, path) in enumerate(outputs.items()):
+        path = Path(path)
         for other, earlier in [*named, *list(outputs.items())[:number]]:
-            if _same_file(Path(path), Path(earlier)):
+            if _same_file(path, Path(earlier)):
                 raise InputError(f"{path}: {option} names the same file as {other} ({earlier}); writing it would "
                                  f"replace that file: give {option} another path")
+        if path.is_dir():
+            raise InputError(f"{path}: {option} is a folder; give the path of a file")
+        folder = next(folder for folder in path.absolute().parents if folder.exists())
+        if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+            raise InputError(f"{path}: {option} cannot be written: {folder} is not a folder this user can write to")
 
 
 def _mode_for(destination: Path) -> int:

@@ -156,10 +156,10 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     """Track a recording into `out` (TRACK_SCHEMA) and its summary beside it (`summary_path`). The
     recording is placed, tracked and written `compute.chunk_plots` plots at a time; an ASTERIX
     recording is decoded whole first. Nothing is written on an error, nor when `out` or its summary
-    would replace an input (`io.check_outputs_apart`)."""
+    would replace an input (`io.check_outputs`)."""
     inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
               "--asterix": asterix_paths}
-    io.check_outputs_apart(inputs, {"--out": out, "--out's summary": summary_path(out)})
+    io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
@@ -189,7 +189,7 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
 
 def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:
     """Write one simulated scenario as a CAT034 + CAT048 recording; `out` must not be an input."""
-    io.check_outputs_apart({"--plots": [plots_path], "--radar": [radar_path]}, {"--out": out})
+    io.check_outputs({"--plots": [plots_path], "--radar": [radar_path]}, {"--out": out})
     plots = io.read_parquet(plots_path, pq.read_schema(plots_path))
     plots = plots.filter(pa.compute.equal(plots.column("scenario_id"), scenario_id))
     if plots.num_rows == 0:

@@ -268,17 +268,22 @@ def test_bad_input_exits_2_and_leaves_an_earlier_output_alone(params, tmp_path, 
 
 @pytest.mark.parametrize("out_as, named", [("plots", "--out names the same file as --plots"),
                                             ("radar", "--out names the same file as --radar"),
-                                            ("summary of plots", "--out's summary names the same file as --plots")])
+                                            ("summary of plots", "--out's summary names the same file as --plots"),
+                                            ("folder", "--out is a folder"),
+                                            ("under a file", "is not a folder this user can write to")])
 def test_an_output_that_would_replace_an_input_is_refused(params, tmp_path, filters_only, caplog, out_as, named):
     """`--out` naming the recording (or the radar description, or an input that `--out`'s summary,
-    `<stem>.summary.json`, would replace) exits 2 before reading, and the user's files keep their bytes."""
+    `<stem>.summary.json`, would replace) exits 2 before reading, and the user's files keep their bytes.
+    So does an `--out` that could not be written (a folder; a path under a file), which failed at the
+    rename after all the work, leaving a summary without its tracks."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
     plots_path, radar_path = tf.write_recording(tmp_path / "recording", plots, radars)
     if out_as == "summary of plots":
         plots_path = plots_path.rename(plots_path.with_name("tracks.summary.json"))
         out = plots_path.with_name("tracks.parquet")
     else:
-        out = {"plots": plots_path, "radar": radar_path}[out_as]
+        out = {"plots": plots_path, "radar": radar_path, "folder": plots_path.parent,
+               "under a file": plots_path / "tracks.parquet"}[out_as]
     before = {path: path.read_bytes() for path in (plots_path, radar_path)}
     params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
     assert cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
