@@ -331,7 +331,8 @@ class _NumericColumn:
         """The column as one Arrow array, or the error `read_parquet` gives for it."""
         name, kind = self.field.name, self.field.type
         if self.wrong_type is not None:
-            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind} ({self.cast_error})")
+            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind} "
+                             f"({self.cast_error})")
         if not self.field.nullable and self.nulls:
             raise InputError(f"{path}: column '{name}' has {self.nulls} missing values")
         if self.nan:
