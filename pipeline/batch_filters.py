@@ -159,12 +159,12 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
 def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mode-weighted mean (..., k) and covariance (..., k, k) of the models' means x (..., M, k)
     and covariances P (..., M, k, k) with probabilities mu (..., M) (filterpy's
-    `IMMEstimator._compute_state_estimate`)."""
-    models = range(mu.shape[-1])
-    mean = sum(mu[..., m, None] * x[..., m, :] for m in models)
-    offsets = [x[..., m, :] - mean for m in models]
-    return mean, sum(mu[..., m, None, None] * (P[..., m, :, :] + offsets[m][..., :, None] * offsets[m][..., None, :])
-                     for m in models)
+    `IMMEstimator._compute_state_estimate`). The sums over models are reductions over the model
+    axis rather than a loop over models: the same additions in the same order, a few NumPy calls
+    whatever M (the tracker calls this twice per associated plot)."""
+    mean = (mu[..., None] * x).sum(axis=-2)
+    offset = x - mean[..., None, :]
+    return mean, (mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :])).sum(axis=-3)
 
 
 def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:

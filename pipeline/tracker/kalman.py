@@ -86,7 +86,7 @@ class KalmanEstimator:
         self._start_filters(tracks, slots)
         motions = [self.motion(dt) for dt in (time - self.time[slots]).tolist()]
         state = batch_filters.moved(BatchState(self.x[slots], self.P[slots], self.mu[slots]),
-                                    np.stack([F for F, _ in motions]), np.stack([Q for _, Q in motions]))
+                                    np.array([F for F, _ in motions]), np.array([Q for _, Q in motions]))
         return Prediction(*batch_filters.position_estimates(state), state)
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
