@@ -34,6 +34,7 @@ class StayingEstimator:
     the plot. It records every prediction it makes and every prediction an update is given."""
 
     gives_covariance = False
+    pairwise = True  # it ignores the time: any (track, plot) pairs
 
     def __init__(self) -> None:
         self.made: list[Prediction] = []

@@ -7,7 +7,9 @@ calls. Units: seconds (Unix), ECEF metres, m^2 for covariances.
 - `predict(tracks, slots, time)`: where the tracks at `slots` (K,) are expected at `time`, all
   in one batch, as a `Prediction`. The tracks are left unchanged. The loop calls it once per
   plot for the candidate tracks the gate scores, and hands the same prediction to the gate and
-  to the update.
+  to the update. An estimator with `pairwise` set also takes `time` as an array (K,), a time
+  per track (its plot's): the loop then predicts the (track, plot) pairs of a whole antenna
+  scan at once.
 - `update(tracks, slot, row, prediction, index)`: the track at `slot` takes plot `row` of
   `tracks.plots`; `prediction` is the one made for it at the plot's time (row `index` of it) or
   None when none was made (the young-track radius gate predicts nothing), then the estimator
@@ -40,10 +42,11 @@ class Prediction(NamedTuple):
 
 class Estimator(Protocol):
     gives_covariance: bool
+    pairwise: bool
 
     def start(self, tracks: LiveTracks, slot: int) -> None: ...
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction: ...
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction: ...
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray | None]: ...

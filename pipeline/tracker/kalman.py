@@ -37,6 +37,7 @@ class KalmanEstimator:
     """One tuned classical filter per live track."""
 
     gives_covariance = True
+    pairwise = True
 
     def __init__(self, settings: FilterSettings, capacity: int = 64) -> None:
         self.settings = settings
@@ -66,7 +67,7 @@ class KalmanEstimator:
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet, at their first plots."""
-        fresh = slots[~self.started[slots]]
+        fresh = np.unique(slots[~self.started[slots]])
         if len(fresh):
             rows = [tracks.tracks[slot].rows[0] for slot in fresh]
             plots = tracks.plots
@@ -80,9 +81,10 @@ class KalmanEstimator:
         table = batch_filters.motion(self.settings, np.array([dt]))[0]
         return table[0], table[1]
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
-        """The tracks' filters moved to `time`, unchanged: positions (K, 3), covariances (K, 3, 3),
-        and the moved models as the state (a BatchState of K tracks)."""
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
+        """The tracks' filters moved to `time` (one, or one per track: `pairwise`), unchanged:
+        positions (K, 3), covariances (K, 3, 3), and the moved models as the state (a BatchState of
+        K tracks)."""
         self._start_filters(tracks, slots)
         motions = [self.motion(dt) for dt in (time - self.time[slots]).tolist()]
         state = batch_filters.moved(BatchState(self.x[slots], self.P[slots], self.mu[slots]),
