@@ -161,7 +161,10 @@ def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, 
     and covariances P (..., M, k, k) with probabilities mu (..., M) (filterpy's
     `IMMEstimator._compute_state_estimate`). The sums over models are reductions over the model
     axis rather than a loop over models: the same additions in the same order, a few NumPy calls
-    whatever M (the tracker calls this twice per associated plot)."""
+    whatever M (the tracker calls this twice per associated plot). A single model (mu = 1) is its
+    own estimate: x as is, and P + 0.0, what the general form gives it (its spread is 0)."""
+    if mu.shape[-1] == 1:
+        return x[..., 0, :], P[..., 0, :, :] + 0.0
     mean = (mu[..., None] * x).sum(axis=-2)
     offset = x - mean[..., None, :]
     return mean, (mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :])).sum(axis=-3)

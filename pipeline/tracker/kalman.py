@@ -67,8 +67,9 @@ class KalmanEstimator:
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet, at their first plots."""
-        fresh = np.unique(slots[~self.started[slots]])
+        fresh = slots[~self.started[slots]]
         if len(fresh):
+            fresh = np.unique(fresh)  # a scan's (track, plot) pairs hold a track once per plot
             rows = [tracks.tracks[slot].rows[0] for slot in fresh]
             plots = tracks.plots
             started = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
