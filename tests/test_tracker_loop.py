@@ -51,6 +51,10 @@ class StayingEstimator:
         self.given.append(prediction)
         return tracks.plots.position[row], None
 
+    def update_pairs(self, tracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction, indices: np.ndarray):
+        self.given.extend([prediction] * len(slots))
+        return tracks.plots.position[rows], None
+
 
 class RecordingGate(WindowGate):
     """VIA's window gate, recording the predictions it is given."""

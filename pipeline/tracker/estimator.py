@@ -16,6 +16,10 @@ calls. Units: seconds (Unix), ECEF metres, m^2 for covariances.
   predicts itself if it needs to. Returns the track's new position (3,) and, if the estimator
   gives one (`gives_covariance`), its covariance (3, 3), else None. The plot is not yet in the
   track's rows.
+- `update_pairs(tracks, slots, rows, prediction, indices)` (`pairwise` estimators only): the
+  updates of several different tracks (P,), each with its plot, from rows `indices` of one
+  prediction, in one call: positions (P, 3) and covariances (P, 3, 3) or None. The loop makes a
+  scan's updates so; a track updated by it and then deleted may see its slot `start`ed again.
 
 A new estimator is one module with a class offering these, and one registry entry
 (`pipeline.tracker.registry`); README "Architecture" has the worked example.
@@ -50,3 +54,6 @@ class Estimator(Protocol):
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray | None]: ...
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]: ...

@@ -96,12 +96,20 @@ class KalmanEstimator:
                ) -> tuple[np.ndarray, np.ndarray]:
         """The track's filter updated with plot `row` (its position and measurement covariance):
         the new position (3,) and its covariance (3, 3)."""
-        plots = tracks.plots
         if prediction is None:
-            prediction, index = self.predict(tracks, np.array([slot]), plots.time[row]), 0
-        moved, at = prediction.state, slice(index, index + 1)
-        posterior = batch_filters.updated(self.settings, BatchState(moved.x[at], moved.P[at], moved.mu[at]),
-                                          plots.position[row:row + 1], plots.covariance[row:row + 1])
-        self._store(slice(slot, slot + 1), batch_filters.mixed(self.settings, posterior), plots.time[row])
-        position, covariance = batch_filters.position_estimates(posterior)
+            prediction, index = self.predict(tracks, np.array([slot]), tracks.plots.time[row]), 0
+        position, covariance = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction,
+                                                 np.array([index]))
         return position[0], covariance[0]
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filters of the tracks at `slots` (P,), each a different track, updated each with its
+        plot of `rows` (P,) from row `indices` (P,) of `prediction`: the new positions (P, 3) and
+        covariances (P, 3, 3)."""
+        plots, moved = tracks.plots, prediction.state
+        posterior = batch_filters.updated(self.settings, BatchState(moved.x[indices], moved.P[indices],
+                                                                    moved.mu[indices]),
+                                          plots.position[rows], plots.covariance[rows])
+        self._store(slots, batch_filters.mixed(self.settings, posterior, each_alone=True), plots.time[rows])
+        return batch_filters.position_estimates(posterior)

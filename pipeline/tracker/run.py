@@ -110,6 +110,7 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
     choices = tracker.assigner.assign(live, rows, candidates)
     chosen = [None if choice is None else (int(c.slots[choice]), live.tracks[c.slots[choice]].track_id, choice)
               for c, choice in zip(candidates, choices)]
+    ahead = _updated_ahead(live, rows, candidates, chosen, estimator) if len(rows) > 1 and tracker.pairwise else {}
     for row, c, choice in zip(rows, candidates, chosen):
         live.manage(plots.time[row])
         if choice is None or not live.holds(*choice[:2]):
@@ -121,10 +122,29 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
         slot, track_id, at = choice
         mature = bool(c.mature[at])
         prediction, index = (c.prediction, c.first + int(c.mature[:at].sum())) if mature else (None, 0)
-        position, covariance = estimator.update(live, slot, row, prediction, index)
+        position, covariance = ahead[row] if row in ahead else estimator.update(live, slot, row, prediction, index)
         live.associate(slot, row, position)
         updates.add(track_id, row, position, live.weight[slot], tracker.label if mature else tracker.young_label,
                     float(c.errors[at]), covariance)
+
+
+def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], chosen: list[tuple | None],
+                   estimator: Estimator) -> dict[int, tuple[np.ndarray, np.ndarray | None]]:
+    """The updates of the batch's plots that chose a mature track, by plot row, made in one call
+    (a pairwise estimator's `update_pairs`) before the plots are taken in time order: each
+    resumes from the batch's prediction with its own plot only, so the order changes nothing. A
+    chosen track that management deletes before its plot's turn got its filter updated for
+    nothing: the plot starts a track instead, and `start` resets the slot's filter. A track chosen
+    by two plots (an assigner that allows it) is left to the plot-by-plot updates."""
+    picked = [(row, choice[0], c.first + int(c.mature[:choice[2]].sum()), c.prediction)
+              for row, c, choice in zip(rows, candidates, chosen) if choice is not None and c.mature[choice[2]]]
+    slots = np.array([slot for _, slot, _, _ in picked], dtype=np.int64)
+    if not picked or len(np.unique(slots)) < len(slots):
+        return {}
+    positions, covariances = estimator.update_pairs(live, slots, np.array([row for row, *_ in picked]),
+                                                    picked[0][3], np.array([index for _, _, index, _ in picked]))
+    return {row: (positions[k], None if covariances is None else covariances[k])
+            for k, (row, *_) in enumerate(picked)}
 
 
 def _scores(gate: Gate, live: LiveTracks, slots: np.ndarray, rows: int | np.ndarray, estimator: Estimator
