@@ -121,7 +121,7 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
             continue
         slot, track_id, at = choice
         mature = bool(c.mature[at])
-        prediction, index = (c.prediction, c.first + int(c.mature[:at].sum())) if mature else (None, 0)
+        prediction, index = (c.prediction, c.first + np.count_nonzero(c.mature[:at])) if mature else (None, 0)
         position, covariance = ahead[row] if row in ahead else estimator.update(live, slot, row, prediction, index)
         live.associate(slot, row, position)
         updates.add(track_id, row, position, live.weight[slot], tracker.label if mature else tracker.young_label,
@@ -136,7 +136,7 @@ def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], 
     chosen track that management deletes before its plot's turn got its filter updated for
     nothing: the plot starts a track instead, and `start` resets the slot's filter. A track chosen
     by two plots (an assigner that allows it) is left to the plot-by-plot updates."""
-    picked = [(row, choice[0], c.first + int(c.mature[:choice[2]].sum()), c.prediction)
+    picked = [(row, choice[0], c.first + np.count_nonzero(c.mature[:choice[2]]), c.prediction)
               for row, c, choice in zip(rows, candidates, chosen) if choice is not None and c.mature[choice[2]]]
     slots = np.array([slot for _, slot, _, _ in picked], dtype=np.int64)
     if not picked or len(np.unique(slots)) < len(slots):
@@ -176,13 +176,14 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     else:
         slots, pair_rows = np.concatenate(near), np.repeat(np.arange(rows.start, rows.stop), counts)
     mature = live.plot_count[slots] >= tracker.mature_from
-    young = ~mature
+    matures = np.count_nonzero(mature)
     errors = np.empty(len(slots))
     prediction = None
-    if young.any():
+    if matures < len(slots):
+        young = ~mature
         errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
                                    tracker.estimator)
-    if mature.any():
+    if matures:
         errors[mature], prediction = _scores(tracker.gate, live, slots[mature], _of_pairs(pair_rows, mature),
                                              tracker.estimator)
     candidates, begin, first = [], 0, 0
@@ -193,7 +194,7 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
             own_errors[~own_mature] = np.inf
         candidates.append(Candidates(own_slots, own_errors, own_mature, prediction, first) if len(own_slots)
                           else NO_CANDIDATES)
-        first += int(own_mature.sum())
+        first += np.count_nonzero(own_mature)
         begin = end
     return candidates
 
