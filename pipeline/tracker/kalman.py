@@ -98,8 +98,8 @@ class KalmanEstimator:
         the new position (3,) and its covariance (3, 3)."""
         if prediction is None:
             prediction, index = self.predict(tracks, np.array([slot]), tracks.plots.time[row]), 0
-        position, covariance = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction,
-                                                 np.array([index]))
+        position, covariance = self._updated(tracks, slice(slot, slot + 1), slice(row, row + 1), prediction,
+                                             slice(index, index + 1))
         return position[0], covariance[0]
 
     def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
@@ -107,6 +107,11 @@ class KalmanEstimator:
         """The filters of the tracks at `slots` (P,), each a different track, updated each with its
         plot of `rows` (P,) from row `indices` (P,) of `prediction`: the new positions (P, 3) and
         covariances (P, 3, 3)."""
+        return self._updated(tracks, slots, rows, prediction, indices)
+
+    def _updated(self, tracks: LiveTracks, slots: np.ndarray | slice, rows: np.ndarray | slice,
+                 prediction: Prediction, indices: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
+        """`update_pairs` for index arrays or, one track's update, slices (cheaper to index by)."""
         plots, moved = tracks.plots, prediction.state
         posterior = batch_filters.updated(self.settings, BatchState(moved.x[indices], moved.P[indices],
                                                                     moved.mu[indices]),
