@@ -161,8 +161,8 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     """The tracks within the pre-filter distance of each plot of `rows`, scored; the plots'
     (track, plot) pairs go to each gate in one call (several plots only for `pairwise` roles).
 
-    With `mature_first`, young tracks are out of the running (error inf) for a plot that some
-    mature track's gate accepts: the track-file priority of Blackman & Popoli (1999),
+    With `mature_first`, young tracks are out of the running (error inf, the young-track gate not
+    asked) for a plot that some mature track's gate accepts: the track-file priority of Blackman & Popoli (1999),
     established tracks before tentative ones. Without it one plot outside an established track's
     gate (a manoeuvre, a plot with a large error) starts a track that is nearer to the next plot
     by the young-track radius's measure, takes it, and the established track starves: one aircraft
@@ -176,27 +176,37 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     else:
         slots, pair_rows = np.concatenate(near), np.repeat(np.arange(rows.start, rows.stop), counts)
     mature = live.plot_count[slots] >= tracker.mature_from
-    matures = np.count_nonzero(mature)
-    errors = np.empty(len(slots))
-    prediction = None
-    if matures < len(slots):
-        young = ~mature
-        errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
-                                   tracker.estimator)
-    if matures:
+    errors = np.full(len(slots), np.inf)
+    prediction, scored = None, mature.any()
+    if scored:
         errors[mature], prediction = _scores(tracker.gate, live, slots[mature], _of_pairs(pair_rows, mature),
                                              tracker.estimator)
+    young = ~mature
+    if tracker.mature_first and scored:
+        young &= ~_of_accepting_plots(np.isfinite(errors) & mature, counts)  # their young tracks stay at inf
+    if young.any():
+        errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
+                                   tracker.estimator)
     candidates, begin, first = [], 0, 0
     for own_slots in near:
         end = begin + len(own_slots)
-        own_errors, own_mature = errors[begin:end], mature[begin:end]
-        if tracker.mature_first and np.isfinite(own_errors[own_mature]).any():
-            own_errors[~own_mature] = np.inf
-        candidates.append(Candidates(own_slots, own_errors, own_mature, prediction, first) if len(own_slots)
+        own_mature = mature[begin:end]
+        candidates.append(Candidates(own_slots, errors[begin:end], own_mature, prediction, first) if len(own_slots)
                           else NO_CANDIDATES)
         first += np.count_nonzero(own_mature)
         begin = end
     return candidates
+
+
+def _of_accepting_plots(accepted: np.ndarray, counts: list[int]) -> np.ndarray:
+    """Whether each (track, plot) pair (K,) belongs to a plot with some `accepted` pair (K,), the
+    pairs given plot by plot, `counts` of each."""
+    if len(counts) == 1:
+        return np.full(len(accepted), accepted.any())
+    plot = np.repeat(np.arange(len(counts)), counts)
+    hit = np.zeros(len(counts), dtype=bool)
+    hit[plot[accepted]] = True
+    return hit[plot]
 
 
 def _of_pairs(rows: int | np.ndarray, selected: np.ndarray) -> int | np.ndarray:
