@@ -162,8 +162,8 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     (track, plot) pairs go to each gate in one call (several plots only for `pairwise` roles).
 
     With `mature_first`, young tracks are out of the running (error inf, the young-track gate not
-    asked) for a plot that some mature track's gate accepts: the track-file priority of Blackman & Popoli (1999),
-    established tracks before tentative ones. Without it one plot outside an established track's
+    asked) for a plot that some mature track's gate accepts: the track-file priority of Blackman &
+    Popoli (1999), established tracks before tentative ones. Without it one plot outside an established track's
     gate (a manoeuvre, a plot with a large error) starts a track that is nearer to the next plot
     by the young-track radius's measure, takes it, and the established track starves: one aircraft
     becomes two tracks."""
