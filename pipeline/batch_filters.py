@@ -90,9 +90,12 @@ def _motion_per_step(settings: FilterSettings, dt: np.ndarray) -> Iterator[np.nd
             yield table[code]
 
 
-def mixed(settings: FilterSettings, state: BatchState) -> BatchState:
+def mixed(settings: FilterSettings, state: BatchState, each_alone: bool = False) -> BatchState:
     """IMM mixing of posteriors: each model's starting state and covariance, and the predicted mode
     probabilities cbar in `mu`; a single filter starts from its posterior (the same object).
+    `each_alone`: cbar of each track by its own (1, M) product, the numbers it gets when mixed
+    alone (the tracker's updates, one track or a scan's at once, must not depend on which tracks
+    share the call); otherwise one product for the batch, whose BLAS call may round differently.
 
     IMMEstimator's mixing, x0_j = sum_i w_ij x_i and P0_j = sum_i w_ij (P_i + d_ij d_ij') with
     d_ij = x_i - x0_j, where w_ij = T_ij mu_i / cbar_j; for two models, whose weights w_0j + w_1j
@@ -100,7 +103,7 @@ def mixed(settings: FilterSettings, state: BatchState) -> BatchState:
     if settings.kind != "imm":
         return state
     transition = settings.transition_probabilities()
-    cbar = state.mu @ transition                                                    # (B, M)
+    cbar = (state.mu[:, None, :] @ transition)[:, 0] if each_alone else state.mu @ transition  # (B, M)
     weight = transition.T * state.mu[:, None, :] / cbar[:, :, None]                 # w_ij at [b, j, i]
     spread = state.x[:, 0] - state.x[:, 1]                                          # (B, n)
     B, M, n = state.x.shape
@@ -159,12 +162,15 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
 def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mode-weighted mean (..., k) and covariance (..., k, k) of the models' means x (..., M, k)
     and covariances P (..., M, k, k) with probabilities mu (..., M) (filterpy's
-    `IMMEstimator._compute_state_estimate`)."""
-    models = range(mu.shape[-1])
-    mean = sum(mu[..., m, None] * x[..., m, :] for m in models)
-    offsets = [x[..., m, :] - mean for m in models]
-    return mean, sum(mu[..., m, None, None] * (P[..., m, :, :] + offsets[m][..., :, None] * offsets[m][..., None, :])
-                     for m in models)
+    `IMMEstimator._compute_state_estimate`). The sums over models are reductions over the model
+    axis rather than a loop over models: the same additions in the same order, a few NumPy calls
+    whatever M (the tracker calls this twice per associated plot). A single model (mu = 1) is its
+    own estimate: x as is, and P + 0.0, what the general form gives it (its spread is 0)."""
+    if mu.shape[-1] == 1:
+        return x[..., 0, :], P[..., 0, :, :] + 0.0
+    mean = (mu[..., None] * x).sum(axis=-2)
+    offset = x - mean[..., None, :]
+    return mean, (mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :])).sum(axis=-3)
 
 
 def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:

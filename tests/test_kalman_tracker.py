@@ -13,7 +13,10 @@ import pytest
 from pipeline import classical_filters, geodesy
 from pipeline.tracker.gate import ChiSquareGate
 from pipeline.tracker.kalman import KalmanEstimator
+from pipeline.tracker import registry
 from pipeline.tracker.management import ThesisWeights
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import track
 from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
@@ -140,3 +143,26 @@ def test_gate_scores_stacked_tracks_as_each_alone(params):
     np.testing.assert_allclose(together.prediction.positions,
                                np.vstack([scores.prediction.positions for scores in alone]), rtol=1e-12)
     assert np.isinf(together.errors[0]) and np.isfinite(together.errors[1:]).all()
+
+
+@pytest.mark.parametrize("method", ["kalman_cv_gnn", "imm_gnn"])
+def test_a_scan_scored_and_updated_at_once_gives_the_updates_of_plot_by_plot(params, method):
+    """GNN scans of eight crossing flights among clutter: the loop predicts, gates and updates the
+    (track, plot) pairs of a whole scan in one call each (the estimator and gates are `pairwise`);
+    the update table is the one the same tracker gives scoring and updating one plot at a time,
+    to the last bit."""
+    rng = np.random.default_rng(16)
+    flights = [(tf.straight_features(params.radar, (40e3 + 3e3 * n, -20e3, 9000.0),
+                                     (60.0 * (n % 3 - 1), 200.0, 0.0), 12, t_offset=0.7 * n), 100 * n + np.arange(12))
+               for n in range(8)]
+    clutter = tf.clutter_features(params.radar, 12, 30.0, rng, half_width_m=60e3)
+    features, ids = tf.merge(*flights, (clutter, 10_000 + np.arange(len(clutter))))
+    plots = tf.plots_of(features, ids, params.radar)
+    tables = []
+    for pairwise in (True, False):
+        tracker = registry.compose(method, Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tracker.estimator.pairwise = pairwise
+        tables.append(track(plots, tracker))
+    assert (tables[0]["association"] == method).sum() > 50
+    for column in tables[0]:
+        np.testing.assert_array_equal(tables[0][column], tables[1][column], err_msg=column)

@@ -34,6 +34,7 @@ class StayingEstimator:
     the plot. It records every prediction it makes and every prediction an update is given."""
 
     gives_covariance = False
+    pairwise = True  # it ignores the time: any (track, plot) pairs
 
     def __init__(self) -> None:
         self.made: list[Prediction] = []
@@ -49,6 +50,10 @@ class StayingEstimator:
     def update(self, tracks, slot: int, row: int, prediction: Prediction | None, index: int):
         self.given.append(prediction)
         return tracks.plots.position[row], None
+
+    def update_pairs(self, tracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction, indices: np.ndarray):
+        self.given.extend([prediction] * len(slots))
+        return tracks.plots.position[rows], None
 
 
 class RecordingGate(WindowGate):

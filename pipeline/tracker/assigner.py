@@ -37,12 +37,14 @@ class Candidates(NamedTuple):
     """The K tracks one plot may join: their slots (K,) in increasing order, normalised errors
     (K,) (inf outside the gate), whether each was scored by the method's gate rather than the
     young-track radius (K,), and the method's gate's prediction of those (None if it made none),
-    in their order."""
+    in their order from row `first` of it (a prediction made for the whole batch of plots holds
+    the other plots' candidates too)."""
 
     slots: np.ndarray
     errors: np.ndarray
     mature: np.ndarray
     prediction: Prediction | None
+    first: int
 
 
 class Assigner(Protocol):

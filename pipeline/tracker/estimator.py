@@ -7,13 +7,19 @@ calls. Units: seconds (Unix), ECEF metres, m^2 for covariances.
 - `predict(tracks, slots, time)`: where the tracks at `slots` (K,) are expected at `time`, all
   in one batch, as a `Prediction`. The tracks are left unchanged. The loop calls it once per
   plot for the candidate tracks the gate scores, and hands the same prediction to the gate and
-  to the update.
+  to the update. An estimator with `pairwise` set also takes `time` as an array (K,), a time
+  per track (its plot's): the loop then predicts the (track, plot) pairs of a whole antenna
+  scan at once.
 - `update(tracks, slot, row, prediction, index)`: the track at `slot` takes plot `row` of
   `tracks.plots`; `prediction` is the one made for it at the plot's time (row `index` of it) or
   None when none was made (the young-track radius gate predicts nothing), then the estimator
   predicts itself if it needs to. Returns the track's new position (3,) and, if the estimator
   gives one (`gives_covariance`), its covariance (3, 3), else None. The plot is not yet in the
   track's rows.
+- `update_pairs(tracks, slots, rows, prediction, indices)` (`pairwise` estimators only): the
+  updates of several different tracks (P,), each with its plot, from rows `indices` of one
+  prediction, in one call: positions (P, 3) and covariances (P, 3, 3) or None. The loop makes a
+  scan's updates so; a track updated by it and then deleted may see its slot `start`ed again.
 
 A new estimator is one module with a class offering these, and one registry entry
 (`pipeline.tracker.registry`); README "Architecture" has the worked example.
@@ -40,10 +46,14 @@ class Prediction(NamedTuple):
 
 class Estimator(Protocol):
     gives_covariance: bool
+    pairwise: bool
 
     def start(self, tracks: LiveTracks, slot: int) -> None: ...
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction: ...
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction: ...
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray | None]: ...
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]: ...

@@ -11,6 +11,8 @@ needs but does not spell out.
 
 A gate with `uses_prediction` set is given the estimator's prediction of the candidates at the
 plot's time, made once by the loop (and handed to the update as well); the others get None.
+A gate with `pairwise` set also takes `row` as an array (K,), a plot per track: the loop then
+scores the (track, plot) pairs of a whole antenna scan in one call (`pipeline.tracker.run`).
 
 - `RadiusGate` (`radius`, and every method's young tracks): distance from the track's last
   plot, within a constant radius.
@@ -48,6 +50,7 @@ class Scores(NamedTuple):
 
 class Gate(Protocol):
     uses_prediction: bool
+    pairwise: bool
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None
                  ) -> Scores: ...
@@ -64,6 +67,7 @@ class RadiusGate:
 
     radius_m: float
     uses_prediction = False
+    pairwise = True
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         distance = np.linalg.norm(tracks.last_plot[slots] - tracks.plots.position[row], axis=1)
@@ -76,6 +80,7 @@ class WindowGate:
 
     window_m: float
     uses_prediction = True
+    pairwise = True
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         distance = np.linalg.norm(prediction.positions - tracks.plots.position[row], axis=1)
@@ -87,6 +92,7 @@ class ChiSquareGate:
     must carry covariances; `probability` is the share of true plots it lets through."""
 
     uses_prediction = True
+    pairwise = True
 
     def __init__(self, probability: float) -> None:
         self.threshold = float(chi2.ppf(probability, df=3))
@@ -102,6 +108,7 @@ class AcceptAll:
     """No gating: every candidate track, error 0 (for an assigner that decides by other means)."""
 
     uses_prediction = False
+    pairwise = True
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         return Scores(np.zeros(len(slots)), None)

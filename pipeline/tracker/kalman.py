@@ -37,6 +37,7 @@ class KalmanEstimator:
     """One tuned classical filter per live track."""
 
     gives_covariance = True
+    pairwise = True
 
     def __init__(self, settings: FilterSettings, capacity: int = 64) -> None:
         self.settings = settings
@@ -68,6 +69,7 @@ class KalmanEstimator:
         """Start the filters of the tracks at `slots` not started yet, at their first plots."""
         fresh = slots[~self.started[slots]]
         if len(fresh):
+            fresh = np.unique(fresh)  # a scan's (track, plot) pairs hold a track once per plot
             rows = [tracks.tracks[slot].rows[0] for slot in fresh]
             plots = tracks.plots
             started = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
@@ -80,25 +82,39 @@ class KalmanEstimator:
         table = batch_filters.motion(self.settings, np.array([dt]))[0]
         return table[0], table[1]
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
-        """The tracks' filters moved to `time`, unchanged: positions (K, 3), covariances (K, 3, 3),
-        and the moved models as the state (a BatchState of K tracks)."""
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
+        """The tracks' filters moved to `time` (one, or one per track: `pairwise`), unchanged:
+        positions (K, 3), covariances (K, 3, 3), and the moved models as the state (a BatchState of
+        K tracks)."""
         self._start_filters(tracks, slots)
         motions = [self.motion(dt) for dt in (time - self.time[slots]).tolist()]
         state = batch_filters.moved(BatchState(self.x[slots], self.P[slots], self.mu[slots]),
-                                    np.stack([F for F, _ in motions]), np.stack([Q for _, Q in motions]))
+                                    np.array([F for F, _ in motions]), np.array([Q for _, Q in motions]))
         return Prediction(*batch_filters.position_estimates(state), state)
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray]:
         """The track's filter updated with plot `row` (its position and measurement covariance):
         the new position (3,) and its covariance (3, 3)."""
-        plots = tracks.plots
         if prediction is None:
-            prediction, index = self.predict(tracks, np.array([slot]), plots.time[row]), 0
-        moved, at = prediction.state, slice(index, index + 1)
-        posterior = batch_filters.updated(self.settings, BatchState(moved.x[at], moved.P[at], moved.mu[at]),
-                                          plots.position[row:row + 1], plots.covariance[row:row + 1])
-        self._store(slice(slot, slot + 1), batch_filters.mixed(self.settings, posterior), plots.time[row])
-        position, covariance = batch_filters.position_estimates(posterior)
+            prediction, index = self.predict(tracks, np.array([slot]), tracks.plots.time[row]), 0
+        position, covariance = self._updated(tracks, slice(slot, slot + 1), slice(row, row + 1), prediction,
+                                             slice(index, index + 1))
         return position[0], covariance[0]
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filters of the tracks at `slots` (P,), each a different track, updated each with its
+        plot of `rows` (P,) from row `indices` (P,) of `prediction`: the new positions (P, 3) and
+        covariances (P, 3, 3)."""
+        return self._updated(tracks, slots, rows, prediction, indices)
+
+    def _updated(self, tracks: LiveTracks, slots: np.ndarray | slice, rows: np.ndarray | slice,
+                 prediction: Prediction, indices: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
+        """`update_pairs` for index arrays or, one track's update, slices (cheaper to index by)."""
+        plots, moved = tracks.plots, prediction.state
+        posterior = batch_filters.updated(self.settings, BatchState(moved.x[indices], moved.P[indices],
+                                                                    moved.mu[indices]),
+                                          plots.position[rows], plots.covariance[rows])
+        self._store(slots, batch_filters.mixed(self.settings, posterior, each_alone=True), plots.time[rows])
+        return batch_filters.position_estimates(posterior)

@@ -47,6 +47,7 @@ class KalmanNetEstimator:
     """One network-scaled filter per live track, of the trained `model` (eval mode, no gradients)."""
 
     gives_covariance = True
+    pairwise = False
 
     def __init__(self, model: KalmanNet, capacity: int = 64) -> None:
         self.model, self.spec = model, model.base
@@ -191,6 +192,7 @@ class PlotScaledGate:
     filter's own innovation covariance: the estimator steps the candidates to the plot itself."""
 
     uses_prediction = False
+    pairwise = False
 
     def __init__(self, estimator: KalmanNetEstimator, probability: float) -> None:
         self.estimator, self.chi_square = estimator, ChiSquareGate(probability)

@@ -41,6 +41,7 @@ class LSTMUpdateEstimator:
     """One MC-dropout ensemble of the LSTM-update estimator per live track."""
 
     gives_covariance = True
+    pairwise = False
 
     def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64) -> None:
         self.model = model.eval()

@@ -28,6 +28,7 @@ class NetworkEstimator:
     """Predictor and filter networks with their scalers."""
 
     gives_covariance = False
+    pairwise = False
 
     def __init__(self, models: Models) -> None:
         self.predictor, self.filter = models.predictor, models.filter

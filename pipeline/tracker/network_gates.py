@@ -28,6 +28,7 @@ class MonteCarloGate:
     """MIA: a variable window from the spread of predictions of perturbed last states."""
 
     uses_prediction = False
+    pairwise = False
 
     def __init__(self, estimator: NetworkEstimator, params: TrackerParams, rng: np.random.Generator) -> None:
         self.estimator, self.params, self.rng = estimator, params, rng
@@ -62,6 +63,7 @@ class AutoencoderGate:
     """AE: accept a plot if the autoencoder reconstructs the track's last plots plus it well enough."""
 
     uses_prediction = False
+    pairwise = False
 
     def __init__(self, autoencoder: LoadedModel, runnable: BatchNetwork) -> None:
         if "threshold" not in autoencoder.extras:
