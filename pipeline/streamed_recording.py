@@ -25,9 +25,10 @@ the error as it always did.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping, Protocol
+from typing import Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -101,21 +102,22 @@ def read_recording(plots_path: Path, radar_path: Path, radar: Radar) -> Recordin
 def _scan(path: Path) -> tuple[int, dict[int, int], int, bool]:
     """The first pass: the plots without twins, their count by radar id, the twins, and whether
     any plot has a target id. Raises _NotStreamable."""
-    read = [0]
+    read = 0
 
-    def counted(batches: Iterator[pa.Table]) -> Iterator[pa.Table]:
-        for batch in batches:
-            read[0] += batch.num_rows
+    def counted() -> Iterator[pa.Table]:
+        nonlocal read
+        for batch in _batches(path):
+            read += batch.num_rows
             yield batch
 
     plots, counts, has_truth = 0, {}, False
-    for table in _twin_free(counted(_batches(path))):
+    for table in _twin_free(counted()):
         plots += table.num_rows
         has_truth = has_truth or table.column("target_id").null_count < table.num_rows
         ids, radar_counts = np.unique(table.column("radar_id").to_numpy(), return_counts=True)
         for radar_id, count in zip(ids.tolist(), radar_counts.tolist()):
             counts[radar_id] = counts.get(radar_id, 0) + count
-    return plots, counts, read[0] - plots, has_truth
+    return plots, counts, read - plots, has_truth
 
 
 def _batches(path: Path) -> Iterator[pa.Table]:
@@ -197,7 +199,7 @@ def _chunks(tables: Iterable[pa.Table], chunk_plots: int) -> Iterator[tuple[int,
     for table in tables:
         scenario = table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
         cuts = [0, *(np.flatnonzero(scenario[1:] != scenario[:-1]) + 1).tolist(), table.num_rows]
-        for start, stop in zip(cuts[:-1], cuts[1:]):
+        for start, stop in itertools.pairwise(cuts):
             if int(scenario[start]) != current and pending:
                 yield current, pa.concat_tables(pending).combine_chunks()
                 pending, rows = [], 0

@@ -369,7 +369,8 @@ def test_a_recording_read_in_chunks_gives_the_bytes_of_one_read_whole(params, tm
     """Three scenarios of the two-radar recording (copies under other scenario and plot ids),
     in file order scenario 9, 7, 8: tracked 5 plots at a time (chunks cut scans, live tracks and
     scenarios) the output file and summary are byte for byte those of one chunk, and the one
-    chunk's those of the whole plot table tracked and written at once (`track_recording`)."""
+    chunk's those of the whole plot table tracked and written at once (`track_recording`; fewer
+    updates than `track`'s row group, TRACK_ROW_GROUP_ROWS)."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(4))
     copies = [with_column(with_values(plots, "scenario_id", np.arange(plots.num_rows), scenario), "plot_id",
                           plots.column("plot_id").to_numpy() + 10000 * scenario) for scenario in (9, 8)]
