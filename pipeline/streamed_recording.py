@@ -14,11 +14,12 @@ Streamed, a recording gives the plots, chunks, counts, warnings and errors of th
 - in order: each scenario's plots in non-decreasing time, scenarios in increasing id (a null id
   counting as `plot_table.NO_SCENARIO`), so the whole read's stable sort would leave every plot
   where it is and its out-of-order and day-error checks (`input_checks`) find nothing;
-- plot ids strictly increasing in the file, so unique without holding them;
+- plot ids unique: seen in the first pass to increase (the usual case), else read alone and
+  sorted (16 bytes a plot for that moment, a quarter of the whole read);
 - twins (`plot_table.first_of_twins`) share a scenario and a time, so in order they lie within
   one run of equal (scenario, time): each run is judged whole, held back across a batch's end.
-Anything else (out of order, plot ids not increasing, a value or column the checks refuse, a plot
-of a radar the description lacks) falls back to the whole read, which sorts the plots or names
+Anything else (out of order, a repeated plot id, a value or column the checks refuse, a plot of a
+radar the description lacks) falls back to the whole read, which sorts the plots or names
 the error as it always did.
 """
 
@@ -101,13 +102,16 @@ def read_recording(plots_path: Path, radar_path: Path, radar: Radar) -> Recordin
 
 def _scan(path: Path) -> tuple[int, dict[int, int], int, bool]:
     """The first pass: the plots without twins, their count by radar id, the twins, and whether
-    any plot has a target id. Raises _NotStreamable."""
-    read = 0
+    any plot has a target id. Raises _NotStreamable, also for a repeated plot id."""
+    read, increasing, last_id = 0, True, None
 
     def counted() -> Iterator[pa.Table]:
-        nonlocal read
+        nonlocal read, increasing, last_id
         for batch in _batches(path):
-            read += batch.num_rows
+            ids = batch.column("plot_id").to_numpy()
+            if len(ids):
+                increasing = increasing and bool((np.diff(ids) > 0).all()) and (last_id is None or ids[0] > last_id)
+                read, last_id = read + len(ids), ids[-1]
             yield batch
 
     plots, counts, has_truth = 0, {}, False
@@ -117,6 +121,8 @@ def _scan(path: Path) -> tuple[int, dict[int, int], int, bool]:
         ids, radar_counts = np.unique(table.column("radar_id").to_numpy(), return_counts=True)
         for radar_id, count in zip(ids.tolist(), radar_counts.tolist()):
             counts[radar_id] = counts.get(radar_id, 0) + count
+    if not increasing and input_checks.repeats(pq.read_table(path, columns=["plot_id"]).column("plot_id").to_numpy()):
+        raise _NotStreamable
     return plots, counts, read - plots, has_truth
 
 
@@ -129,7 +135,7 @@ def _batches(path: Path) -> Iterator[pa.Table]:
         if any(field.name not in names and field.name not in OPTIONAL_PLOT_COLUMNS for field in PLOT_INPUT_SCHEMA):
             raise _NotStreamable
         present = [field.name for field in PLOT_INPUT_SCHEMA if field.name in names]
-        last: tuple[int, float, int] | None = None  # the previous batch's last scenario, time and plot id
+        last: tuple[int, float] | None = None  # the previous batch's last scenario and time
         for batch in file.iter_batches(batch_size=io.READ_BATCH_ROWS, columns=present):
             table = _checked(batch)
             last = _in_order(table, last)
@@ -158,20 +164,20 @@ def _checked(batch: pa.RecordBatch) -> pa.Table:
     return table
 
 
-def _in_order(table: pa.Table, last: tuple[int, float, int] | None) -> tuple[int, float, int] | None:
-    """Whether `table`, after the batch that ended with `last` (scenario, time, plot id), keeps the
-    file in order with increasing plot ids; the table's own last. Raises _NotStreamable."""
+def _in_order(table: pa.Table, last: tuple[int, float] | None) -> tuple[int, float] | None:
+    """Whether `table`, after the batch that ended with `last` (scenario, time), keeps the file in
+    order; the table's own last. Raises _NotStreamable."""
     if not table.num_rows:
         return last
     scenario = table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
-    time, plot_id = table.column("time_unix_s").to_numpy(), table.column("plot_id").to_numpy()
+    time = table.column("time_unix_s").to_numpy()
     if last is not None:
-        scenario, time, plot_id = np.r_[last[0], scenario], np.r_[last[1], time], np.r_[last[2], plot_id]
+        scenario, time = np.r_[last[0], scenario], np.r_[last[1], time]
     later_scenario = scenario[1:] > scenario[:-1]
     in_order = later_scenario | ((scenario[1:] == scenario[:-1]) & (time[1:] >= time[:-1]))
-    if not (in_order.all() and (plot_id[1:] > plot_id[:-1]).all()):
+    if not in_order.all():
         raise _NotStreamable
-    return int(scenario[-1]), float(time[-1]), int(plot_id[-1])
+    return int(scenario[-1]), float(time[-1])
 
 
 def _twin_free(tables: Iterable[pa.Table]) -> Iterator[pa.Table]:

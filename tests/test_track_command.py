@@ -415,17 +415,21 @@ def in_order(plots: pa.Table, first_plot_id: int = 0) -> pa.Table:
 
 
 def test_an_in_order_recording_is_streamed_with_the_chunks_of_the_sorting_read(params, tmp_path, monkeypatch):
-    """Scenario 7, then 8 (a copy), each in time order with increasing plot ids, and twins of rows 6,
-    12 and 30 right after them, read 7 rows at a time (runs of one time cross the batches' ends):
-    `read_recording` streams it and gives, chunk for chunk (5 plots, cutting scans and scenarios),
-    the plots, counts and warnings of the whole read that sorts it."""
+    """Scenario 7, then 8 (a copy), each in time order, the plot ids increasing in 7 and decreasing
+    in 8, and twins of rows 6, 12 and 30 right after them, read 7 rows at a time (runs of one time
+    cross the batches' ends): `read_recording` streams it and gives, chunk for chunk (5 plots,
+    cutting scans and scenarios), the plots, counts and warnings of the whole read that sorts it.
+    With a plot id repeated it gives the whole read's error."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(14))
     scenario = in_order(plots)
     scenario = in_order(scenario.take(np.sort(np.r_[np.arange(scenario.num_rows), 6, 12, 30])))
     copy = with_column(scenario, "scenario_id", np.full(scenario.num_rows, 8))
-    recording = pa.concat_tables([scenario, with_column(copy, "plot_id", np.arange(scenario.num_rows) + 10000)])
-    paths = tf.write_recording(tmp_path, recording, radars)
+    recording = pa.concat_tables([scenario, with_column(copy, "plot_id", 20000 - np.arange(scenario.num_rows))])
     monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    repeated = tf.write_recording(tmp_path / "repeated", with_values(recording, "plot_id", [50], 3), radars)
+    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"):
+        streamed_recording.read_recording(*repeated, params.radar)
+    paths = tf.write_recording(tmp_path, recording, radars)
     streamed = streamed_recording.read_recording(*paths, params.radar)
     whole = plot_table.read_parquet_recording(*paths, params.radar)
     assert isinstance(streamed, streamed_recording.StreamedRecording)
