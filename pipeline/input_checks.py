@@ -105,8 +105,7 @@ def _check_bounds(table: pa.Table, path: Path, checks: tuple[Check, ...]) -> Non
 def _check_unique(table: pa.Table, path: Path, column: str, why: str) -> None:
     """No value of `column` twice: name the first repeated value and its rows."""
     values = table.column(column).to_numpy()
-    ordered = np.sort(values)
-    if not (ordered[1:] == ordered[:-1]).any():  # the usual case, in a fraction of np.unique's memory
+    if not repeats(values):  # the usual case, in a fraction of np.unique's memory
         return
     _, first, counts = np.unique(values, return_index=True, return_counts=True)
     repeated = counts > 1
@@ -117,6 +116,12 @@ def _check_unique(table: pa.Table, path: Path, column: str, why: str) -> None:
         raise io.InputError(f"{path}: {column} {value} is listed {len(rows)} times (rows {listed}); "
                             f"{int((counts[repeated] - 1).sum())} rows repeat an earlier {column} "
                             f"(column '{column}' must be unique: {why})")
+
+
+def repeats(values: np.ndarray) -> bool:
+    """Whether any value of `values` (N,) occurs twice: sorted, so 8 bytes a value held twice."""
+    ordered = np.sort(values)
+    return bool((ordered[1:] == ordered[:-1]).any())
 
 
 def changes(order: np.ndarray, keys: tuple[np.ndarray, ...] | list[np.ndarray]) -> np.ndarray:

@@ -180,12 +180,13 @@ class ParquetChunks:
 
 
 @contextmanager
-def parquet_chunks(destination: str | Path, schema: pa.Schema) -> Iterator[ParquetChunks]:
-    """A `ParquetChunks` writing atomically to `destination` (as `write_parquet`): the file appears,
-    whole, only if the block succeeds; nothing is left on an error."""
+def parquet_chunks(destination: str | Path, schema: pa.Schema, row_group_rows: int = ROW_GROUP_ROWS
+                   ) -> Iterator[ParquetChunks]:
+    """A `ParquetChunks` writing atomically to `destination` (as `write_parquet`, with row groups of
+    `row_group_rows`): the file appears, whole, only if the block succeeds; nothing is left on an error."""
     with atomic_path(destination) as temporary:
         with pq.ParquetWriter(temporary, schema, compression="zstd", write_statistics=True) as writer:
-            chunks = ParquetChunks(writer, schema)
+            chunks = ParquetChunks(writer, schema, row_group_rows)
             yield chunks
             chunks.close()
 

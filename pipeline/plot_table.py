@@ -24,8 +24,9 @@ is often slightly out of order, and the tracker needs time order.
 
 `recording` does all of that but the placing, and keeps the checked input columns (a
 `Recording`); the plots are placed from it a part at a time (`Recording.plots`,
-`Recording.scenarios`), so that `track` holds a long recording in a fraction of the memory of
-its plot table. `plot_table` places every plot at once.
+`Recording.scenarios`, `placed`), so that `track` holds a long recording in a fraction of the
+memory of its plot table. `plot_table` places every plot at once. A Parquet recording already in
+order need not be held at all: `pipeline.streamed_recording` reads it from its file as it goes.
 """
 
 from __future__ import annotations
@@ -169,24 +170,7 @@ class Recording:
 
     def plots(self, rows: np.ndarray | slice = slice(None)) -> Plots:
         """The plot table of the plots at `rows` of the sorted order (all by default)."""
-        table = self.table.take(self.order[rows])
-        radar_ids, range_m = table.column("radar_id").to_numpy(), table.column("range_m").to_numpy()
-        azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
-        position, covariance = np.empty((len(table), 3)), np.empty((len(table), 3, 3))
-        for radar_id in np.unique(radar_ids):
-            chosen = np.flatnonzero(radar_ids == radar_id)
-            # a lone plot of a radar with more is placed twice over: numpy's matmul and einsum take
-            # another path for one row, whose last bit can differ from the whole recording's
-            at = np.r_[chosen, chosen] if len(chosen) == 1 and self.plot_counts[int(radar_id)] > 1 else chosen
-            radar = self.radars[int(radar_id)]
-            placed = geodesy.plot_to_ecef(range_m[at], azimuth[at], altitude[at], radar)
-            position[chosen] = placed[:len(chosen)]
-            covariance[chosen] = baselines.measurement_covariance(placed, radar)[:len(chosen)]
-        return Plots(table.column("plot_id").to_numpy(), radar_ids,
-                     table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
-                     table.column("time_unix_s").to_numpy(), position, range_m, covariance,
-                     table.column("target_id").fill_null(NO_TARGET).to_numpy(), self.has_truth, dict(self.radars),
-                     self.skipped)
+        return placed(self.table.take(self.order[rows]), self.radars, self.plot_counts, self.has_truth, self.skipped)
 
     def scenarios(self, chunk_plots: int) -> Iterator[tuple[int, Iterator[Plots]]]:
         """Each scenario (in scenario id order) with its plots in time order, `chunk_plots` at a time."""
@@ -196,6 +180,28 @@ class Recording:
             yield int(scenario_ids[start]), (self.plots(slice(first, min(first + chunk_plots, stop)))
                                              for first in range(start, stop, chunk_plots))
 
+
+def placed(table: pa.Table, radars: Mapping[int, Radar], plot_counts: Mapping[int, int], has_truth: bool,
+           skipped: Mapping[str, int]) -> Plots:
+    """The plot table of `table` (PLOT_INPUT_SCHEMA rows of a recording, in the order given): each
+    plot placed in ECEF from its own radar's site, with its covariance (module docstring).
+    `plot_counts` (the recording's plots by radar id), `has_truth` and `skipped` are the recording's."""
+    radar_ids, range_m = table.column("radar_id").to_numpy(), table.column("range_m").to_numpy()
+    azimuth, altitude = table.column("azimuth_deg").to_numpy(), table.column("altitude_m").to_numpy()
+    position, covariance = np.empty((len(table), 3)), np.empty((len(table), 3, 3))
+    for radar_id in np.unique(radar_ids):
+        chosen = np.flatnonzero(radar_ids == radar_id)
+        # a lone plot of a radar with more is placed twice over: numpy's matmul and einsum take
+        # another path for one row, whose last bit can differ from the whole recording's
+        at = np.r_[chosen, chosen] if len(chosen) == 1 and plot_counts[int(radar_id)] > 1 else chosen
+        radar = radars[int(radar_id)]
+        ecef = geodesy.plot_to_ecef(range_m[at], azimuth[at], altitude[at], radar)
+        position[chosen] = ecef[:len(chosen)]
+        covariance[chosen] = baselines.measurement_covariance(ecef, radar)[:len(chosen)]
+    return Plots(table.column("plot_id").to_numpy(), radar_ids,
+                 table.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
+                 table.column("time_unix_s").to_numpy(), position, range_m, covariance,
+                 table.column("target_id").fill_null(NO_TARGET).to_numpy(), has_truth, dict(radars), skipped)
 
 
 def plot_table(plots: pa.Table, radars: Mapping[int, Radar], source: str,
@@ -217,12 +223,9 @@ def recording(plots: pa.Table, radars: Mapping[int, Radar], source: str,
         raise io.InputError(f"{source}: plots from radar id {unknown[0]} ({len(unknown)} unknown in all), which "
                             f"the radar description does not list (it has {sorted(radars)})")
     skipped = dict(skipped or {})
-    first = _first_of_twins(plots, radars)
+    first = first_of_twins(plots, radars)
     if len(first) < plots.num_rows:
-        twins = plots.num_rows - len(first)
-        skipped[DUPLICATE_PLOT] = skipped.get(DUPLICATE_PLOT, 0) + twins
-        log.warning("%s: %d duplicate plots (the same radar or radar site, scenario, time, range, azimuth and "
-                    "altitude as an earlier plot) dropped", source, twins)
+        note_twins(skipped, plots.num_rows - len(first), source)
         plots = plots.take(first)
     scenario_ids = plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
     times = plots.column("time_unix_s").to_numpy()
@@ -233,7 +236,14 @@ def recording(plots: pa.Table, radars: Mapping[int, Radar], source: str,
                      {radar_id: 0 for radar_id in radars} | dict(zip(ids.tolist(), counts.tolist())))
 
 
-def _first_of_twins(plots: pa.Table, radars: Mapping[int, Radar]) -> np.ndarray:
+def note_twins(skipped: dict[str, int], twins: int, source: str) -> None:
+    """Count `twins` dropped twins in `skipped` (DUPLICATE_PLOT) and warn of them."""
+    skipped[DUPLICATE_PLOT] = skipped.get(DUPLICATE_PLOT, 0) + twins
+    log.warning("%s: %d duplicate plots (the same radar or radar site, scenario, time, range, azimuth and "
+                "altitude as an earlier plot) dropped", source, twins)
+
+
+def first_of_twins(plots: pa.Table, radars: Mapping[int, Radar]) -> np.ndarray:
     """Rows (ascending) of the plots that are not twins of an earlier row: the same radar site,
     scenario, time, range, azimuth and altitude (the plot id may differ, as when each of two redundant
     feeds' copies got its own). The site, not the radar id: two radars at one site cannot measure one

@@ -25,7 +25,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline import asterix_io, geodesy, io, plot_table
+from pipeline import asterix_io, geodesy, io, plot_table, streamed_recording
 from pipeline.params import Params, Radar, TrackerParams
 from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
@@ -53,6 +53,7 @@ TRACK_SCHEMA = io.schema(
     *((name, pa.float64(), True) for name in ("covariance_xx_m2", "covariance_xy_m2", "covariance_xz_m2",
                                               "covariance_yy_m2", "covariance_yz_m2", "covariance_zz_m2")),
 )
+TRACK_ROW_GROUP_ROWS = 65536  # rows per row group of `track`'s output: what the writer holds (about 200 B a row)
 COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-6:]  # the position's ECEF covariance, upper triangle; null when the
 COVARIANCE_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # estimator gives none (the networks)
 
@@ -153,10 +154,12 @@ class RunSummary:
 
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path) -> None:
-    """Track a recording into `out` (TRACK_SCHEMA) and its summary beside it (`summary_path`). The
-    recording is placed, tracked and written `compute.chunk_plots` plots at a time; an ASTERIX
-    recording is decoded whole first. Nothing is written on an error, nor when `out` or its summary
-    would replace an input (`io.check_outputs`)."""
+    """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
+    summary beside it (`summary_path`). The recording is placed, tracked and written
+    `compute.chunk_plots` plots at a time: a Parquet recording in time order is read from its file
+    as it goes (`streamed_recording`), one out of order held and sorted first; an ASTERIX recording
+    is decoded whole first. Nothing is written on an error, nor when `out` or its summary would
+    replace an input (`io.check_outputs`)."""
     inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
               "--asterix": asterix_paths}
     io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
@@ -169,12 +172,12 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     else:
         if plots_path is None or radar_path is None:
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
-        recording = plot_table.read_parquet_recording(plots_path, radar_path, params.radar)
+        recording = streamed_recording.read_recording(plots_path, radar_path, params.radar)
     summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
     if not len(recording):
         log.warning("track: no plots to track in %s: the output will hold no track update",
                     plots_path or ", ".join(map(str, asterix_paths)))
-    with io.parquet_chunks(out, TRACK_SCHEMA) as written:
+    with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir):
             written.add(part, new_chunk=first)

@@ -16,7 +16,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import association_net, association_report, baselines, cli, geodesy, io, model_store, plot_table
+from pipeline import (association_net, association_report, baselines, cli, geodesy, io, model_store, plot_table,
+                      streamed_recording)
 from pipeline import track_command as track_command_module
 from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
@@ -462,7 +463,8 @@ def test_a_recording_read_in_chunks_gives_the_bytes_of_one_read_whole(params, tm
     """Three scenarios of the two-radar recording (copies under other scenario and plot ids),
     in file order scenario 9, 7, 8: tracked 5 plots at a time (chunks cut scans, live tracks and
     scenarios) the output file and summary are byte for byte those of one chunk, and the one
-    chunk's those of the whole plot table tracked and written at once (`track_recording`)."""
+    chunk's those of the whole plot table tracked and written at once (`track_recording`; fewer
+    updates than `track`'s row group, TRACK_ROW_GROUP_ROWS)."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(4))
     copies = [with_column(with_values(plots, "scenario_id", np.arange(plots.num_rows), scenario), "plot_id",
                           plots.column("plot_id").to_numpy() + 10000 * scenario) for scenario in (9, 8)]
@@ -497,6 +499,68 @@ def test_an_output_written_in_row_groups_has_the_bytes_of_one_write(tmp_path):
                    row_group_size=4)
     assert (tmp_path / "parts.parquet").read_bytes() == (tmp_path / "whole.parquet").read_bytes()
     assert pq.ParquetFile(tmp_path / "parts.parquet").metadata.num_row_groups == 3
+
+
+def in_order(plots: pa.Table, first_plot_id: int = 0) -> pa.Table:
+    """The recording sorted by time (stable) with plot ids counting up from `first_plot_id` in that
+    order: what `simulate` and a recorder write, which `track` reads from its file as it goes."""
+    plots = plots.take(np.argsort(plots.column("time_unix_s").to_numpy(), kind="stable"))
+    return with_column(plots, "plot_id", np.arange(first_plot_id, first_plot_id + plots.num_rows))
+
+
+def test_an_in_order_recording_is_streamed_with_the_chunks_of_the_sorting_read(params, tmp_path, monkeypatch):
+    """Scenario 7, then 8 (a copy), each in time order, the plot ids increasing in 7 and decreasing
+    in 8, and twins of rows 6, 12 and 30 right after them, read 7 rows at a time (runs of one time
+    cross the batches' ends): `read_recording` streams it and gives, chunk for chunk (5 plots,
+    cutting scans and scenarios), the plots, counts and warnings of the whole read that sorts it.
+    With a plot id repeated it gives the whole read's error."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(14))
+    scenario = in_order(plots)
+    scenario = in_order(scenario.take(np.sort(np.r_[np.arange(scenario.num_rows), 6, 12, 30])))
+    copy = with_column(scenario, "scenario_id", np.full(scenario.num_rows, 8))
+    recording = pa.concat_tables([scenario, with_column(copy, "plot_id", 20000 - np.arange(scenario.num_rows))])
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    repeated = tf.write_recording(tmp_path / "repeated", with_values(recording, "plot_id", [50], 3), radars)
+    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"):
+        streamed_recording.read_recording(*repeated, params.radar)
+    paths = tf.write_recording(tmp_path, recording, radars)
+    streamed = streamed_recording.read_recording(*paths, params.radar)
+    whole = plot_table.read_parquet_recording(*paths, params.radar)
+    assert isinstance(streamed, streamed_recording.StreamedRecording)
+    assert len(streamed) == len(whole) == recording.num_rows - 6
+    assert streamed.skipped == whole.skipped == {"duplicate plot": 6}
+    assert streamed.plot_counts == whole.plot_counts and streamed.has_truth == whole.has_truth
+    streamed_chunks = [(scenario_id, chunk) for scenario_id, chunks in streamed.scenarios(5) for chunk in chunks]
+    whole_chunks = [(scenario_id, chunk) for scenario_id, chunks in whole.scenarios(5) for chunk in chunks]
+    assert [(s, len(c)) for s, c in streamed_chunks] == [(s, len(c)) for s, c in whole_chunks]
+    assert {s for s, _ in streamed_chunks} == {7, 8}
+    for (_, got), (_, expected) in zip(streamed_chunks, whole_chunks):
+        for name in ("plot_id", "radar_id", "scenario_id", "time", "position", "range_m", "covariance", "target_id"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+
+
+def test_an_out_of_order_recording_is_sorted_and_tracked_as_the_in_order_one(params, tmp_path, filters_only,
+                                                                             monkeypatch):
+    """The in-order recording, and the same plots with rows 20..29 after 30..39 (as files merged
+    slightly out of order): the second is read whole and sorted, the first streamed; both give the
+    same output file, of several row groups (here 16 updates each), with the rows of the whole
+    plot table tracked at once."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(15))
+    ordered = in_order(plots)
+    swapped = ordered.take(np.r_[0:20, 30:40, 20:30, 40:ordered.num_rows])
+    monkeypatch.setattr(track_command_module, "TRACK_ROW_GROUP_ROWS", 16)
+    for name, recording in (("ordered", ordered), ("swapped", swapped)):
+        assert track_command(tmp_path / name, filters_only, "imm", recording, radars, {"compute.chunk_plots": 7}) == 0
+    paths = [tmp_path / name / "recording" / "plots.parquet" for name in ("ordered", "swapped")]
+    kinds = [type(streamed_recording.read_recording(path, path.with_name("radar.parquet"), params.radar))
+             for path in paths]
+    assert kinds == [streamed_recording.StreamedRecording, plot_table.Recording]
+    output = [(tmp_path / name / "tracks.parquet").read_bytes() for name in ("ordered", "swapped")]
+    assert output[0] == output[1]
+    assert pq.ParquetFile(tmp_path / "ordered" / "tracks.parquet").metadata.num_row_groups > 1
+    whole = track_recording(plot_table.read_parquet_plots(paths[1], paths[1].with_name("radar.parquet"),
+                                                          params.radar), "imm", 4000.0, params, filters_only)
+    assert pq.read_table(tmp_path / "ordered" / "tracks.parquet").to_pandas().equals(whole.to_pandas())  # NaN == NaN
 
 
 def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
