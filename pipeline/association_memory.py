@@ -8,8 +8,8 @@ the fused picture: one aircraft reported twice, GOSPA's false part. Multi-sensor
 time anew: they keep the last association as long as it stays plausible and test new pairs only among the
 tracks left over (track-to-track association over a sliding window of past times, Tian & Bar-Shalom (2009),
 "Track-to-track fusion configurations and association in a sliding window", J. Advances in Information Fusion
-4(2); the hard-decision association history of Blackman & Popoli (1999), "Design and Analysis of Modern Tracking
-Systems", chapter 9, multiple-sensor track association). The rule here (ours, in that spirit), the same for
+4(2); Blackman & Popoli (1999), "Design and Analysis of Modern Tracking Systems", chapter 9, multiple-sensor
+tracking, on using the previous track-to-track decisions). The rule here (ours, in that spirit), the same for
 every method, applied after the method's own decision at each common time:
 
 1. Held pairs: the last common time's pairs of this scenario (by track ids) whose tracks are both still there and

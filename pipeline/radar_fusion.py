@@ -11,7 +11,7 @@ Per scene (the first `fusion.scenes` of `scenes.plan_scene`, planned around para
 2. Each radar's plots alone are tracked with `fusion.tracker` (`track_command.track_recording`, the `track`
    command's code), giving a track table with position covariances.
 3. Both tables at common times (`common_time_states`, params `associate`), associated by each of
-   `fusion.methods` and by the oracle (a pair when both tracks' majority target, over their confirmed
+   `fusion.methods` with memory (`table_association.decide`, `association_memory`) and by the oracle (a pair when both tracks' majority target, over their confirmed
    updates' plots, is the same aircraft), then fused (`table_association.picture`).
 4. GOSPA (`gospa.gospa`, cutoff and order of params `evaluate`) at each common time between the truth and
    each picture: radar 1's tracks alone, radar 2's alone, each method's fused picture, the oracle's. The
