@@ -2,7 +2,8 @@
 
 Reads each table with its radar description (`track_tables`), takes both users' tracks at common times
 (`common_time_states`), associates them with the chosen method and fuses the pairs (`table_association`).
-Everything is computed before anything is written, so bad input (an InputError, exit 2) leaves no output;
+Everything is computed before anything is written, so bad input (an InputError, exit 2) leaves no output,
+and an output that would replace an input or the other output is refused first (`io.check_outputs`);
 each output is written atomically, with the mode a plain write would give it (`io.atomic_path`).
 """
 
@@ -21,6 +22,8 @@ log = logging.getLogger("pipeline")
 
 def run_associate(params: Params, track_paths: list[Path], radar_paths: list[Path], method: str, models_dir: Path,
                   pairs_out: Path, fused_out: Path) -> None:
+    io.check_outputs({"--tracks": track_paths, "--radar": radar_paths},
+                           {"--pairs": pairs_out, "--fused": fused_out})
     first, second = (read_track_table(tracks, radar) for tracks, radar in zip(track_paths, radar_paths))
     model = association_net.load(models_dir / "association_net.pt") if method == "network" else None
     frame = common_frame(first, second)

@@ -252,9 +252,7 @@ def save(model: AssociationNet, path: Path, extras: dict | None = None) -> None:
 
 
 def load(path: Path) -> AssociationNet:
-    """A saved association network, ready to decide (eval mode); InputError naming a missing or unreadable file."""
-    stored = model_store.read_bundle(path)
-    config = stored["config"]
-    model = AssociationNet(AssociationNetConfig(**{**config, "feature_hidden": tuple(config["feature_hidden"])}))
-    model.load_state_dict(stored["state_dict"])
-    return model.eval()
+    """A saved association network, ready to decide (eval mode); InputError naming a missing, unreadable or
+    foreign file (`model_store.load_network`)."""
+    return model_store.load_network(path, lambda config: AssociationNet(AssociationNetConfig(
+        **{**config, "feature_hidden": tuple(config["feature_hidden"])})), "train_association")

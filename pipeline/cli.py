@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 from datetime import date
@@ -231,6 +232,18 @@ def _iso_date(text: str) -> date:
         raise argparse.ArgumentTypeError(f"{text!r} is not a date (YYYY-MM-DD): {error}") from None
 
 
+def _window_m(text: str) -> float:
+    """--window checked where it is parsed: a radius of 0, below 0, NaN or infinity would run (no plot, or every
+    plot, within it) and give tracks of nothing, so it is a usage error (exit 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a window: a finite distance above 0 in metres")
+    return value
+
+
 def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:
     if isinstance(option, tuple):
         command.add_argument("--out", default=option[1], help="output folder (default: %(default)s)")
@@ -250,7 +263,7 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                              help="tracking method (default: %(default)s); the classical ones ("
                                   + ", ".join(name for name in TRACKERS if METHODS[name].family == CLASSICAL)
                                   + ") need only models/kalman_tuned.json, the others the trained networks")
-        command.add_argument("--window", type=float, default=4000.0,
+        command.add_argument("--window", type=_window_m, default=4000.0,
                              help="association window in metres (default: %(default)s)")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
     elif option == "association":
@@ -280,7 +293,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__)
+    examples = "\n".join(f"  {example}" for _, _, example, _ in COMMANDS.values())
+    parser = argparse.ArgumentParser(prog="python -m pipeline", description=__doc__,
+                                     epilog="examples (one per command; `<command> --help` gives its options):\n"
+                                            + examples, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (handler, summary, example, options) in COMMANDS.items():

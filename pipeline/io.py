@@ -32,6 +32,40 @@ class InputError(ValueError):
     """An input file is missing or malformed; the message names the file and the column."""
 
 
+def _same_file(first: Path, second: Path) -> bool:
+    """Whether two paths name one file: the same resolved path, or (both existing) the same inode,
+    so a symbolic or hard link to an input counts as the input."""
+    if first.resolve() == second.resolve():
+        return True
+    try:
+        return os.path.samefile(first, second)
+    except OSError:
+        return False
+
+
+def check_outputs(inputs: dict[str, list[Path]], outputs: dict[str, Path]) -> None:
+    """InputError, before anything is read, for an output that could not be written or would destroy a file.
+
+    `inputs` and `outputs` map what the user calls each file (an option such as '--plots') to its
+    path(s). Refused: an output that names an input (writing is atomic, so `track --out plots.parquet`
+    would silently replace the user's recording with its result) or an earlier output (only the last
+    written would be left); an output that is a folder, or whose nearest existing folder is not a
+    writable folder: found only at the rename, after all the work, and after any output written
+    before it (a summary without its tracks)."""
+    named = [(option, Path(path)) for option, paths in inputs.items() for path in paths]
+    for number, (option, path) in enumerate(outputs.items()):
+        path = Path(path)
+        for other, earlier in [*named, *list(outputs.items())[:number]]:
+            if _same_file(path, Path(earlier)):
+                raise InputError(f"{path}: {option} names the same file as {other} ({earlier}); writing it would "
+                                 f"replace that file: give {option} another path")
+        if path.is_dir():
+            raise InputError(f"{path}: {option} is a folder; give the path of a file")
+        folder = next(folder for folder in path.absolute().parents if folder.exists())
+        if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+            raise InputError(f"{path}: {option} cannot be written: {folder} is not a folder this user can write to")
+
+
 def _mode_for(destination: Path) -> int:
     try:
         return stat.S_IMODE(destination.stat().st_mode)
@@ -206,8 +240,9 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
         if not column.type.equals(field.type):
             try:
                 column = column.cast(field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type}") from None
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
+                                 f"({_first_line(error)})") from None
         if not field.nullable and column.null_count:
             raise InputError(f"{path}: column '{field.name}' has {column.null_count} missing values")
         if pa.types.is_floating(field.type) and not field.nullable:
@@ -217,6 +252,10 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
                                  f"(first at row {int(np.argmax(nan))})")
         columns[field.name] = column
     return pa.Table.from_arrays(list(columns.values()), schema=schema)
+
+
+def _first_line(error: Exception) -> str:
+    return str(error).splitlines()[0] if str(error) else type(error).__name__
 
 
 READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
@@ -264,6 +303,7 @@ class _NumericColumn:
         self.filled = self.nulls = self.nan = 0
         self.first_nan: int | None = None
         self.wrong_type: pa.DataType | None = None
+        self.cast_error = ""  # Arrow's reason, naming the value that does not fit (an int64 id past int32)
 
     def add(self, column: pa.Array) -> None:
         """The column's next batch."""
@@ -273,8 +313,8 @@ class _NumericColumn:
         if not column.type.equals(self.field.type):
             try:
                 column = column.cast(self.field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-                self.wrong_type = column.type
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+                self.wrong_type, self.cast_error = column.type, _first_line(error)
                 return
         self.nulls += column.null_count
         values = column.fill_null(0).to_numpy(zero_copy_only=False) if column.null_count else column.to_numpy()
@@ -291,7 +331,8 @@ class _NumericColumn:
         """The column as one Arrow array, or the error `read_parquet` gives for it."""
         name, kind = self.field.name, self.field.type
         if self.wrong_type is not None:
-            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind}")
+            raise InputError(f"{path}: column '{name}' has type {self.wrong_type}, expected {kind} "
+                             f"({self.cast_error})")
         if not self.field.nullable and self.nulls:
             raise InputError(f"{path}: column '{name}' has {self.nulls} missing values")
         if self.nan:

@@ -212,8 +212,6 @@ def save(model: nn.Module, path: Path, extras: dict | None = None) -> None:
 
 
 def load(path: Path) -> KalmanNet:
-    """A saved network-scaled filter, ready to filter (eval mode)."""
-    stored = model_store.read_bundle(path)
-    model = KalmanNet(KalmanNetConfig(**stored["config"]))
-    model.load_state_dict(stored["state_dict"])
-    return model.eval()
+    """A saved network-scaled filter, ready to filter (eval mode); InputError naming a missing, unreadable or
+    foreign file (`model_store.load_network`)."""
+    return model_store.load_network(path, lambda config: KalmanNet(KalmanNetConfig(**config)), "train_kalman_net")

@@ -65,7 +65,7 @@ import torch
 from scipy.stats import chi2
 from torch import Tensor, nn
 
-from pipeline import torch_filters
+from pipeline import model_store, torch_filters
 from pipeline.torch_filters import Filtered, FilterSpec, SequenceBatch, State
 
 FEATURES = 16
@@ -388,8 +388,7 @@ def _gate_factor(innovation: Tensor, C: Tensor, rest: Tensor, probability: float
 
 
 def load(path: Path) -> LSTMUpdate:
-    """An estimator saved by `kalman_net.save` (config, weights, calibration), ready to estimate (eval mode)."""
-    stored = torch.load(path, weights_only=True)
-    model = LSTMUpdate(LSTMUpdateConfig(**stored["config"]))
-    model.load_state_dict(stored["state_dict"])
-    return model.eval()
+    """An estimator saved by `kalman_net.save` (config, weights, calibration), ready to estimate (eval mode);
+    InputError naming a missing, unreadable or foreign file (`model_store.load_network`)."""
+    return model_store.load_network(path, lambda config: LSTMUpdate(LSTMUpdateConfig(**config)),
+                                    "train_lstm_update")

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 from torch import nn
@@ -59,6 +59,28 @@ def read_bundle(path: str | Path) -> dict[str, Any]:
     if not isinstance(bundle, dict):
         raise io.InputError(f"{path}: not a model bundle")
     return bundle
+
+
+def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module], stage: str) -> nn.Module:
+    """A network saved as {"config", "state_dict"} with `write_bundle` (the network-scaled filter, the LSTM
+    update, the association network), built by `build(config)`, given its weights, in eval mode.
+
+    InputError naming the file and the `dvc repro` stage that makes it when the file is missing or unreadable,
+    or its config or weights do not fit `build`'s network (another network's file, or one saved by another
+    version of the code): torch and the configs raise TypeError, ValueError, KeyError or RuntimeError."""
+    path = Path(path)
+    bundle = read_bundle(path)
+    if not isinstance(bundle.get("config"), dict) or "state_dict" not in bundle:
+        raise io.InputError(f"{path}: not a saved network (no config and weights); make it again with "
+                            f"`dvc repro {stage}`")
+    try:
+        network = build(bundle["config"])
+        network.load_state_dict(bundle["state_dict"])
+    except (TypeError, ValueError, KeyError, RuntimeError) as error:
+        raise io.InputError(f"{path}: its config or weights do not fit the network `dvc repro {stage}` makes "
+                            f"(another network's file, or an older one?): {type(error).__name__}: "
+                            f"{str(error).splitlines()[0] if str(error) else ''}") from None
+    return network.eval()
 
 
 def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,

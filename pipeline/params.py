@@ -1202,8 +1202,8 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
                          f"(segment_plots = {segment_plots})")
     shares = _get(tree, "range_shares", p)
     if (not isinstance(shares, list) or not shares or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in shares)):
-        raise ParamError(f"{p}.range_shares = {shares!r}: must list positive numbers")
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v <= 1 for v in shares)):
+        raise ParamError(f"{p}.range_shares = {shares!r}: must list shares of the range, in (0, 1]")
     return LSTMUpdate(
         split=_split_name(tree, p, splits), hidden=_integer(tree, "hidden", p, 1),
         dropout=_number(tree, "dropout", p, 0.0, 1.0, high_open=True), mc_samples=_integer(tree, "mc_samples", p, 1),
@@ -1270,11 +1270,14 @@ def _fusion(tree: Mapping[str, Any], radar_tree: Mapping[str, Any]) -> Fusion:
         raise ParamError(f"{p}.radars: both radars have id {radars[0].radar.radar_id} (sac * 256 + sic): give the "
                          "second its own sic")
     tracker = _text(tree, "tracker", p)
-    if tracker not in registry.TRACKERS:
-        raise ParamError(f"{p}.tracker = {tracker!r}: must be one of {registry.TRACKERS}")
+    if tracker not in registry.COVARIANCE_TRACKERS:  # a network's tracks would stop the stage after its first scene
+        without = [name for name in registry.TRACKERS if name not in registry.COVARIANCE_TRACKERS]
+        raise ParamError(f"{p}.tracker = {tracker!r}: must be one of {registry.COVARIANCE_TRACKERS} (association "
+                         f"and fusion read each track's covariance; the networks of {', '.join(without)} give none)")
     methods = _get(tree, "methods", p)
-    if not isinstance(methods, list) or not methods or not set(methods) <= set(ASSOCIATION_METHODS):
-        raise ParamError(f"{p}.methods = {methods!r}: must list some of {ASSOCIATION_METHODS}")
+    if (not isinstance(methods, list) or not methods or not set(methods) <= set(ASSOCIATION_METHODS)
+            or len(set(methods)) != len(methods)):
+        raise ParamError(f"{p}.methods = {methods!r}: must list distinct methods of {ASSOCIATION_METHODS}")
     scenes = _integer(tree, "scenes", p, 1)
     sweep_scenes = _integer(tree, "sweep_scenes", p, 1)
     if sweep_scenes > scenes:
@@ -1350,6 +1353,8 @@ def load_params_tree(path: str | Path = "params.yaml") -> dict[str, Any]:
         tree = yaml.load(path.read_text(), Loader=ParamsLoader)
     except FileNotFoundError:
         raise ParamError(f"{path}: params file not found") from None
+    except (OSError, UnicodeDecodeError) as error:  # a folder, an unreadable file, a binary file
+        raise ParamError(f"{path}: not a readable params file ({type(error).__name__}: {error})") from None
     except yaml.YAMLError as error:
         raise ParamError(f"{path}: not valid YAML ({error})") from None
     if not isinstance(tree, Mapping):

@@ -14,7 +14,8 @@ rotation where there is no scan period.
 A user's Parquet recording is checked value by value first (`input_checks`: physical ranges,
 unique plot and radar ids, no day errors in the times). Plots of a radar the description lacks
 stop the reading with an error naming the radar id. A plot identical to an earlier one of the same
-radar and scenario (same time, range, azimuth and altitude, whatever its plot id) is dropped and
+radar (or a radar at the same site) and scenario (same time, range, azimuth and altitude, whatever its
+plot id) is dropped and
 counted (`Plots.skipped["duplicate plot"]`, and a warning): recordings off redundant networks hold
 every packet twice, and a twin associated with its own plot at distance 0 would confirm clutter in
 half the scans. Plots out of time order within a scenario are sorted (stable) with a warning
@@ -216,12 +217,12 @@ def recording(plots: pa.Table, radars: Mapping[int, Radar], source: str,
         raise io.InputError(f"{source}: plots from radar id {unknown[0]} ({len(unknown)} unknown in all), which "
                             f"the radar description does not list (it has {sorted(radars)})")
     skipped = dict(skipped or {})
-    first = _first_of_twins(plots)
+    first = _first_of_twins(plots, radars)
     if len(first) < plots.num_rows:
         twins = plots.num_rows - len(first)
         skipped[DUPLICATE_PLOT] = skipped.get(DUPLICATE_PLOT, 0) + twins
-        log.warning("%s: %d duplicate plots (the same radar, scenario, time, range, azimuth and altitude as an "
-                    "earlier plot) dropped", source, twins)
+        log.warning("%s: %d duplicate plots (the same radar or radar site, scenario, time, range, azimuth and "
+                    "altitude as an earlier plot) dropped", source, twins)
         plots = plots.take(first)
     scenario_ids = plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy()
     times = plots.column("time_unix_s").to_numpy()
@@ -232,14 +233,22 @@ def recording(plots: pa.Table, radars: Mapping[int, Radar], source: str,
                      {radar_id: 0 for radar_id in radars} | dict(zip(ids.tolist(), counts.tolist())))
 
 
-def _first_of_twins(plots: pa.Table) -> np.ndarray:
-    """Rows (ascending) of the plots that are not twins of an earlier row: the same radar, scenario,
-    time, range, azimuth and altitude (the plot id may differ, as when each of two redundant feeds'
-    copies got its own)."""
-    keys = [plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(), plots.column("radar_id").to_numpy(),
+def _first_of_twins(plots: pa.Table, radars: Mapping[int, Radar]) -> np.ndarray:
+    """Rows (ascending) of the plots that are not twins of an earlier row: the same radar site,
+    scenario, time, range, azimuth and altitude (the plot id may differ, as when each of two redundant
+    feeds' copies got its own). The site, not the radar id: two radars at one site cannot measure one
+    detection to the bit at the same instant, so such a pair is one feed delivered under two ids, and
+    tracked together (as a recording's radars are) each twin would confirm clutter in half the scans."""
+    ids = np.array(sorted(radars), dtype=np.int64)
+    sites: dict[tuple[float, float, float], int] = {}
+    site_of = np.array([sites.setdefault((radars[r].latitude_deg, radars[r].longitude_deg, radars[r].height_m),
+                                         len(sites)) for r in ids.tolist()], dtype=np.int64)
+    keys = [plots.column("scenario_id").fill_null(NO_SCENARIO).to_numpy(),
+            site_of[np.searchsorted(ids, plots.column("radar_id").to_numpy())],
             *(plots.column(name).to_numpy() for name in ("time_unix_s", "range_m", "azimuth_deg", "altitude_m"))]
     order = np.lexsort(keys[::-1])  # stable: of equal rows, the earliest comes first
-    return np.sort(order[np.r_[True, input_checks.changes(order, keys)]])
+    first = np.r_[True, input_checks.changes(order, keys)][:len(order)]  # no row of an empty recording
+    return np.sort(order[first])
 
 
 def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str) -> None:

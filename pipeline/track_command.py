@@ -155,7 +155,11 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path) -> None:
     """Track a recording into `out` (TRACK_SCHEMA) and its summary beside it (`summary_path`). The
     recording is placed, tracked and written `compute.chunk_plots` plots at a time; an ASTERIX
-    recording is decoded whole first. Nothing is written on an error."""
+    recording is decoded whole first. Nothing is written on an error, nor when `out` or its summary
+    would replace an input (`io.check_outputs`)."""
+    inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
+              "--asterix": asterix_paths}
+    io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
@@ -167,6 +171,9 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
         recording = plot_table.read_parquet_recording(plots_path, radar_path, params.radar)
     summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
+    if not len(recording):
+        log.warning("track: no plots to track in %s: the output will hold no track update",
+                    plots_path or ", ".join(map(str, asterix_paths)))
     with io.parquet_chunks(out, TRACK_SCHEMA) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir):
@@ -181,7 +188,8 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
 
 
 def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:
-    """Write one simulated scenario as a CAT034 + CAT048 recording."""
+    """Write one simulated scenario as a CAT034 + CAT048 recording; `out` must not be an input."""
+    io.check_outputs({"--plots": [plots_path], "--radar": [radar_path]}, {"--out": out})
     plots = io.read_parquet(plots_path, pq.read_schema(plots_path))
     plots = plots.filter(pa.compute.equal(plots.column("scenario_id"), scenario_id))
     if plots.num_rows == 0:

@@ -12,6 +12,7 @@ Refused with an InputError naming the file, column, row and value:
 - a table in another frame: its ECEF position more than FRAME_TOLERANCE_M from its own latitude, longitude
   and altitude (not WGS-84 ECEF), or its range more than FRAME_TOLERANCE_M from the distance to the
   described site (the description places the radar elsewhere than the tracker did);
+- a confirmed update whose time, position or range is infinite (FINITE_COLUMNS; NaN is refused on reading);
 - a confirmed update whose covariance is missing (tracked by a network, which gives none), NaN, or not
   positive definite.
 """
@@ -30,6 +31,10 @@ from pipeline.track_command import COVARIANCE_COLUMNS, COVARIANCE_ENTRIES, TRACK
 
 FRAME_TOLERANCE_M = 1.0   # metres: `track` writes both positions and the range from one ECEF point (float64)
 CONFIRMED = "confirmed"
+# read_parquet refuses NaN in these; an infinity would pass the frame check (a difference of infinities is NaN,
+# and NaN > 1 m is False) and be extrapolated to the common times
+FINITE_COLUMNS = ("time_unix_s", "x_ecef_m", "y_ecef_m", "z_ecef_m", "latitude_deg", "longitude_deg", "altitude_m",
+                  "range_m")
 
 
 @dataclass(frozen=True)
@@ -119,6 +124,9 @@ def track_table(table: pa.Table, sites: dict[int, np.ndarray], path: Path) -> Tr
     confirmed = np.asarray(table.column("status").to_pylist()) == CONFIRMED
     rows = np.flatnonzero(confirmed)
     table = table.filter(pa.array(confirmed))
+    for name in FINITE_COLUMNS:
+        values = table.column(name).to_numpy()
+        _first_bad(path, f"column '{name}' must be finite", ~np.isfinite(values), values, rows)
     position = np.column_stack([table.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"]).reshape(-1, 3)
     _check_frame(path, table, position, sites, rows)
     covariance = _covariances(path, table, rows)

@@ -185,18 +185,22 @@ def first_confirmed(values: np.ndarray, status: list[str], value) -> np.ndarray:
     ("a radar without a site", "radar2", "latitude_deg", lambda v: np.array([None] * len(v)),
      "column 'latitude_deg' has 1 missing values"),
     ("an unknown radar id", "tracks1", "radar_id", lambda v: np.full(len(v), 9), "has radar 9 (row 0)"),
-    ("a NaN covariance", "tracks1", "covariance_yy_m2", "nan", "column 'covariance_yy_m2' must be finite: row 3"),
+    ("a NaN covariance", "tracks1", "covariance_yy_m2", float("nan"),
+     "column 'covariance_yy_m2' must be finite: row 3"),
+    ("an infinite time", "tracks2", "time_unix_s", float("inf"), "column 'time_unix_s' must be finite: row 3 is inf"),
+    ("an infinite position", "tracks1", "y_ecef_m", float("-inf"), "column 'y_ecef_m' must be finite: row 3 is -inf"),
     ("no covariance (a network's tracks)", "tracks2", "covariance_xx_m2", lambda v: np.array([None] * len(v)),
      "column 'covariance_xx_m2' is missing in"),
 ])
 def test_bad_input_is_named_exits_2_and_writes_nothing(users, models, tmp_path, caplog, case, which, column, change,
                                                         named):
-    """Each bad input stops the command before any output, with a message naming the file and what is wrong."""
-    if change == "nan":
-        status = pq.read_table(users[which]).column("status").to_pylist()
+    """Each bad input stops the command before any output, with a message naming the file and what is wrong.
+    A float `change` is the value of the first confirmed update (row 3: the tracks confirm at their 4th plot)."""
+    if isinstance(change, float):
+        status, value = pq.read_table(users[which]).column("status").to_pylist(), change
 
         def change(values: np.ndarray) -> np.ndarray:
-            return first_confirmed(values, status, float("nan"))
+            return first_confirmed(values, status, value)
     bad = rewritten(users[which], tmp_path / "bad", column, change)
     changed = {**users, which: bad}
     out = tmp_path / "out"
@@ -205,6 +209,24 @@ def test_bad_input_is_named_exits_2_and_writes_nothing(users, models, tmp_path, 
     assert code == 2, case
     assert str(bad) in caplog.text and named in caplog.text, caplog.text
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_an_output_named_like_an_input_or_the_other_output_is_refused(users, models, tmp_path, caplog):
+    """`--pairs` naming one of the user's track tables (a slip of the shell's history) would replace it with the
+    pairs; `--pairs` and `--fused` naming one file would keep only the fused picture. Both exit 2 before
+    anything is read or written, naming the options, and the user's table keeps its bytes."""
+    table = tmp_path / "north.parquet"
+    table.write_bytes(users["tracks1"].read_bytes())
+    code = cli.main(["associate", "--params", str(users["params"]), "--tracks", str(table), str(users["tracks2"]),
+                     "--radar", str(users["radar1"]), str(users["radar2"]), "--models", str(models),
+                     "--pairs", str(table), "--fused", str(tmp_path / "fused.parquet")])
+    assert code == 2 and "--pairs names the same file as --tracks" in caplog.text, caplog.text
+    assert table.read_bytes() == users["tracks1"].read_bytes() and not (tmp_path / "fused.parquet").exists()
+    code = cli.main(["associate", "--params", str(users["params"]), "--tracks", str(users["tracks1"]),
+                     str(users["tracks2"]), "--radar", str(users["radar1"]), str(users["radar2"]), "--models",
+                     str(models), "--pairs", str(tmp_path / "out.parquet"), "--fused", str(tmp_path / "out.parquet")])
+    assert code == 2 and "--fused names the same file as --pairs" in caplog.text
+    assert not (tmp_path / "out.parquet").exists()
 
 
 @pytest.mark.parametrize("key, value, named", [

@@ -27,6 +27,27 @@ def test_every_command_has_help_with_an_example(command: str) -> None:
     assert "example:" in result.stdout and f"python -m pipeline {command}" in result.stdout
 
 
+def test_the_top_level_help_shows_an_example_of_every_command() -> None:
+    """`python -m pipeline --help` lists each command with a line that calls it, so a new user sees how to
+    start without opening each command's help."""
+    result = run_pipeline("--help")
+    assert result.returncode == 0, result.stderr
+    examples = result.stdout.split("examples (one per command")[1]
+    for command in COMMANDS:
+        assert f"python -m pipeline {command} " in examples, command
+
+
+@pytest.mark.parametrize("window", ["0", "-1", "nan", "inf", "4km"])
+def test_a_window_that_is_not_a_positive_distance_is_a_usage_error(window: str, tmp_path: Path) -> None:
+    """`track --window` of 0, below 0, NaN or infinity ran and gave tracks of nothing (every plot a new track);
+    now argparse refuses it (exit 2) naming the option and the value, and nothing is written."""
+    result = run_pipeline("track", "--plots", "plots.parquet", "--radar", "radar.parquet", "--window", window,
+                          "--out", str(tmp_path / "tracks.parquet"))
+    assert result.returncode == 2
+    assert f"argument --window: '{window}' is not a window: a finite distance above 0 in metres" in result.stderr
+    assert not any(tmp_path.iterdir())
+
+
 def test_invalid_param_names_key_and_value_and_writes_nothing(tmp_path: Path) -> None:
     """A bad radar latitude stops the stage before any output exists."""
     tree = tiny_params_tree()

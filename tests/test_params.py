@@ -73,6 +73,11 @@ def test_default_params_load():
     # GOSPA: a positive cutoff, and an order for which it is a metric
     ("evaluate.gospa_cutoff_m", 0.0, ["evaluate.gospa_cutoff_m", "0.0"]),
     ("evaluate.gospa_order", 0.5, ["evaluate.gospa_order = 0.5", "[1.0, inf]"]),
+    # the fusion stage's local tracker must give covariances (a network's tracks would stop it after a scene)
+    ("fusion.tracker", "via", ["fusion.tracker = 'via'", "'imm_gnn'", "radius, via, mia, ae give none"]),
+    ("fusion.methods", ["statistical", "statistical"], ["fusion.methods", "distinct"]),
+    # a share of the range is at most all of it
+    ("lstm_update.range_shares", [0.05, 1.5], ["lstm_update.range_shares = [0.05, 1.5]", "(0, 1]"]),
 ])
 def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
     """An invalid value raises ParamError whose message names the key and the value."""
@@ -118,6 +123,18 @@ def test_load_params_names_the_file(params_tree, tmp_path):
         load_params(path)
     with pytest.raises(ParamError, match="not found"):
         load_params(tmp_path / "missing.yaml")
+
+
+@pytest.mark.parametrize("given", ["folder", "binary"])
+def test_a_params_path_that_is_not_a_text_file_is_named(tmp_path, given):
+    """`--params` naming a folder or a Parquet file (a slip of the shell's completion) was a traceback (exit 1)."""
+    path = tmp_path / "params.yaml"
+    if given == "folder":
+        path.mkdir()
+    else:
+        path.write_bytes(b"PAR1\x15\x04\xff\xfe")
+    with pytest.raises(ParamError, match=re.escape(f"{path}: not a readable params file")):
+        load_params(path)
 
 
 def test_learning_rate_as_dvc_writes_it_is_a_float(params_tree, tmp_path):

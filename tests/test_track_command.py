@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import baselines, cli, geodesy, io, plot_table
+from pipeline import association_net, association_report, baselines, cli, geodesy, io, model_store, plot_table
 from pipeline import track_command as track_command_module
 from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
@@ -148,6 +148,34 @@ def test_a_method_whose_model_is_missing_names_the_file_and_stage(params, tmp_pa
     assert not (tmp_path / "tracks.parquet").exists()
 
 
+def association_weights(params) -> dict:
+    """An association network's config and weights (untrained): a saved network, but not of the tracker's kinds."""
+    model = association_net.AssociationNet(association_report.network_config(params.association))
+    return {"config": dataclasses.asdict(model.config), "state_dict": model.state_dict()}
+
+
+@pytest.mark.parametrize("damage", ["truncated", "another network", "no weights"])
+@pytest.mark.parametrize("load, file, stage", [
+    (lambda folder, params: load_models(folder, params, ["lstm_update"]), "lstm_update.pt", "train_lstm_update"),
+    (lambda folder, params: load_models(folder, params, ["kalman_net"]), "kalman_net.pt", "train_kalman_net"),
+    (lambda folder, params: association_net.load(folder / "association_net.pt"), "association_net.pt",
+     "train_association"),
+])
+def test_a_damaged_or_foreign_network_file_names_the_file_and_stage(params, tmp_path, load, file, stage, damage):
+    """A network file cut short (a copy interrupted), holding another network (files swapped by hand), or a
+    config without weights: an InputError (exit 2) naming the file, never a torch traceback."""
+    bundle = association_weights(params)
+    if file == "association_net.pt" and damage == "another network":
+        bundle = {"config": {"base": "cv", "cell": "gru"}, "state_dict": {}}  # a network-scaled filter's config
+    model_store.write_bundle({"config": bundle["config"]} if damage == "no weights" else bundle, tmp_path / file)
+    if damage == "truncated":
+        (tmp_path / file).write_bytes((tmp_path / file).read_bytes()[:300])
+    with pytest.raises(io.InputError) as error:
+        load(tmp_path, params)
+    assert str(error.value).startswith(f"{tmp_path / file}: ")
+    assert damage == "truncated" or f"dvc repro {stage}" in str(error.value)
+
+
 def test_a_classical_method_without_tuned_filters_names_the_file_and_stage(params, tmp_path):
     with pytest.raises(io.InputError, match=r"kalman_tuned.json: file not found; imm_gnn needs it .*"
                                             r"dvc repro tune_kalman"):
@@ -236,6 +264,54 @@ def test_bad_input_exits_2_and_leaves_an_earlier_output_alone(params, tmp_path, 
     assert track_command(tmp_path, filters_only, "kalman_cv", with_values(plots, "range_m", [3], np.inf), radars) == 2
     assert "plots.parquet: column 'range_m' must be in (0, 2000000]: row 3 is inf" in caplog.text
     assert out.read_bytes() == b"earlier run" and summary.read_text() == "{}"
+
+
+@pytest.mark.parametrize("out_as, named", [("plots", "--out names the same file as --plots"),
+                                            ("radar", "--out names the same file as --radar"),
+                                            ("summary of plots", "--out's summary names the same file as --plots"),
+                                            ("folder", "--out is a folder"),
+                                            ("under a file", "is not a folder this user can write to")])
+def test_an_output_that_would_replace_an_input_is_refused(params, tmp_path, filters_only, caplog, out_as, named):
+    """`--out` naming the recording (or the radar description, or an input that `--out`'s summary,
+    `<stem>.summary.json`, would replace) exits 2 before reading, and the user's files keep their bytes.
+    So does an `--out` that could not be written (a folder; a path under a file), which failed at the
+    rename after all the work, leaving a summary without its tracks."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    plots_path, radar_path = tf.write_recording(tmp_path / "recording", plots, radars)
+    if out_as == "summary of plots":
+        plots_path = plots_path.rename(plots_path.with_name("tracks.summary.json"))
+        out = plots_path.with_name("tracks.parquet")
+    else:
+        out = {"plots": plots_path, "radar": radar_path, "folder": plots_path.parent,
+               "under a file": plots_path / "tracks.parquet"}[out_as]
+    before = {path: path.read_bytes() for path in (plots_path, radar_path)}
+    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
+    assert cli.main(["track", "--params", str(params_path), "--plots", str(plots_path), "--radar", str(radar_path),
+                     "--models", str(filters_only), "--method", "kalman_cv", "--out", str(out)]) == 2
+    assert named in caplog.text, caplog.text
+    assert {path: path.read_bytes() for path in before} == before
+    assert sorted(p.name for p in plots_path.parent.iterdir()) == sorted(p.name for p in before)
+
+
+def test_asterix_export_refuses_to_write_over_its_plots(params, tmp_path, caplog):
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    plots_path, radar_path = tf.write_recording(tmp_path, plots, radars)
+    before = plots_path.read_bytes()
+    assert cli.main(["asterix-export", "--plots", str(plots_path), "--radar", str(radar_path), "--scenario", "7",
+                     "--out", str(plots_path)]) == 2
+    assert "--out names the same file as --plots" in caplog.text and plots_path.read_bytes() == before
+
+
+def test_a_recording_without_plots_gives_an_empty_track_table_and_says_so(params, tmp_path, filters_only, caplog):
+    """No plots (a user's selection that matched nothing) once ended in an IndexError traceback (exit 1): now an
+    empty table of the track schema, a summary of zeros and a warning."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
+    assert track_command(tmp_path, filters_only, "kalman_cv", plots.slice(0, 0), radars) == 0
+    tracks = pq.read_table(tmp_path / "tracks.parquet")
+    assert tracks.num_rows == 0 and tracks.schema.equals(track_command_module.TRACK_SCHEMA)
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    assert summary["plots_tracked"] == summary["track_updates"] == summary["confirmed_tracks"] == 0
+    assert "no plots to track" in caplog.text
 
 
 def test_a_repeated_plot_id_names_the_value_and_its_rows(params, tmp_path):
@@ -336,6 +412,23 @@ def test_twins_of_earlier_plots_are_dropped_and_counted_beside_what_the_reader_s
     assert not np.isin(np.arange(90000, 90005), table.plot_id).any() and 90009 in table.plot_id
 
 
+def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_path, filters_only):
+    """Radar 1's plots given again under radar id 3, described at radar 1's site (one feed delivered under two
+    ids): the copies are dropped and counted as duplicates, so the tracks are those of radar 1's plots alone,
+    not the extra confirmed clutter of each plot associated with its own copy."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(13))
+    alone = plots.filter(pa.compute.equal(plots.column("radar_id"), 1))
+    copies = with_column(with_column(alone, "radar_id", np.full(alone.num_rows, 3, np.int32)), "plot_id",
+                         alone.column("plot_id").to_numpy() + 100000)
+    both = pa.concat_tables([radars.slice(0, 1), with_column(radars.slice(0, 1), "radar_id", np.array([3]))])
+    assert track_command(tmp_path / "once", filters_only, "kalman_cv", alone, radars.slice(0, 1)) == 0
+    assert track_command(tmp_path / "twice", filters_only, "kalman_cv", pa.concat_tables([alone, copies]), both) == 0
+    once = pq.read_table(tmp_path / "once" / "tracks.parquet").to_pandas()
+    assert pq.read_table(tmp_path / "twice" / "tracks.parquet").to_pandas().equals(once)
+    summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
+    assert summary["skipped"] == {"duplicate plot": alone.num_rows} and summary["radars"]["3"]["plots"] == 0
+
+
 def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_path, filters_only):
     """Every plot given twice, each twin right after its plot with its own plot id: the same track
     file as the recording once, and the summary counts the twins."""
@@ -424,13 +517,13 @@ def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_pa
     assert (tmp_path / "tracks.parquet").read_bytes() == b"earlier"
 
 
-@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "missing"])
+@pytest.mark.parametrize("change", ["none", "nan", "null", "type", "overflow", "missing"])
 def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(params, tmp_path, monkeypatch,
                                                                                 change):
     """`io.read_numeric_parquet`, reading 7 rows at a time, against `io.read_parquet` on the same
     file: the same values (and nulls), or the same error naming the same first row and count (a NaN
-    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, no
-    range column)."""
+    range at rows 9 and 20, a missing azimuth at rows 3 and 15, altitude as text with "high" at row 12, radar ids
+    as int64 with one past int32 at row 5, no range column). A value that cannot be converted is named."""
     plots, _, _ = two_radar_recording(params, np.random.default_rng(6))
     if change == "nan":
         plots = with_values(plots, "range_m", [9, 20], np.nan)
@@ -442,6 +535,10 @@ def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(
         text = plots.column("altitude_m").cast(pa.string()).to_pylist()
         text[12] = "high"
         plots = plots.set_column(plots.schema.get_field_index("altitude_m"), "altitude_m", pa.array(text))
+    elif change == "overflow":
+        ids = plots.column("radar_id").to_numpy().astype(np.int64)
+        ids[5] = 2**40
+        plots = plots.set_column(plots.schema.get_field_index("radar_id"), "radar_id", pa.array(ids))
     elif change == "missing":
         plots = plots.drop_columns(["range_m"])
     path = tmp_path / "plots.parquet"
@@ -456,3 +553,4 @@ def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(
     with pytest.raises(io.InputError) as got:
         io.read_numeric_parquet(*arguments)
     assert str(got.value) == str(expected.value)
+    assert {"type": "'high'", "overflow": str(2**40)}.get(change, "") in str(got.value)

@@ -180,6 +180,9 @@ METHODS: dict[str, Method] = {method.name: method for method in [
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
 REFERENCES = tuple(name for name, method in METHODS.items() if method.family == REFERENCE)
+# the trackers whose updates carry a position covariance (what track-to-track association and fusion read): all
+# but the thesis's networks, whose estimator (`network_estimator`, the predictor and filter) gives none
+COVARIANCE_TRACKERS = tuple(name for name in TRACKERS if not set(METHODS[name].needs) & set(NETWORKS))
 
 
 def method(name: str) -> Method:
