@@ -4,7 +4,9 @@ One scene of the seed's setting with N targets, every one tracked by both radars
 --area-m (30 km: 100 targets at the seed's density of about 24 in 10 km), radar 2 biased by --bias-m. Timed,
 best of --repeat: the statistical assignment, the double threshold (its whole history of 4 times), the
 bias-robust method, the network (models/association_net.pt if there, else untrained weights: same cost; its
-scene tensor is N x N, which its adaptive pool allows), and covariance intersection of the decided pairs.
+scene tensor is N x N, which its adaptive pool allows), the memory every method's pairs then go through
+(`association_memory.continue_pairs`, the bias-robust pairs held from the last time), and covariance intersection
+of the decided pairs.
 Torch on one thread.
 
     python benchmarks/bench_association.py [--tracks 100] [--repeat 5] [--bias-m 200] [--area-m 30000]
@@ -18,12 +20,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from pipeline import association_net
+from pipeline.association_memory import HORIZONTAL, continue_pairs
 from pipeline.association_net import AssociationNet, AssociationNetConfig
 from pipeline.association_scenes import SceneSetting, make_scene
 from pipeline.bias_robust_association import associate_bias_robust
+from pipeline.common_time_states import STATE_SIZE, Snapshot
 from pipeline.track_association import associate_double_threshold, associate_statistical
 from pipeline.track_fusion import fuse_pairs
 
@@ -46,6 +51,16 @@ def network(tracks: int, model_path: Path) -> AssociationNet:
         model.load_state_dict(trained.state_dict())
         return model.eval()
     return AssociationNet(AssociationNetConfig(tracks, 14142.0, (8, 16, 36), 8)).eval()
+
+
+def full_states(states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[e, n, ve, vn] states (N, 4) and covariances as the common-time states' [e, n, u, ve, vn, vu] (up: 0 with
+    unit variance)."""
+    full = np.zeros((len(states), STATE_SIZE))
+    full[:, HORIZONTAL] = states
+    covariance = np.tile(np.eye(STATE_SIZE), (len(states), 1, 1))
+    covariance[:, HORIZONTAL[:, None], HORIZONTAL[None, :]] = covariances
+    return full, covariance
 
 
 def main() -> None:
@@ -75,6 +90,11 @@ def main() -> None:
         correct = len({tuple(p) for p in pairs.tolist()} & {tuple(p) for p in scene.true_pairs.tolist()})
         print(f"  {name:17s} {best_ms(work, args.repeat):8.1f} ms   {correct}/{len(scene.true_pairs)} pairs correct")
     pairs = methods["bias_robust"]()
+    (x1, p1), (x2, p2) = full_states(*last[:2]), full_states(*last[2:])
+    snapshot = Snapshot(0, 0.0, (np.arange(len(x1)), np.arange(len(x2))), (x1, x2), (p1, p2))
+    held = {(int(i), int(j)) for i, j in pairs.tolist()}
+    print(f"  {'memory':17s} {best_ms(lambda: continue_pairs(snapshot, pairs, None, held, 0.999999), args.repeat):8.1f}"
+          f" ms   held {len(held)} pairs")
     print(f"  {'fusion (CI, trace)':17s} {best_ms(lambda: fuse_pairs(*last, pairs), args.repeat):8.1f} ms   "
           f"{len(pairs)} pairs")
 

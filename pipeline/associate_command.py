@@ -28,7 +28,8 @@ def run_associate(params: Params, track_paths: list[Path], radar_paths: list[Pat
     model = association_net.load(models_dir / "association_net.pt") if method == "network" else None
     frame = common_frame(first, second)
     snapshots = common_snapshots(first, second, frame, params.associate)
-    decisions = table_association.decide(snapshots, method, params.association, model)
+    decisions = table_association.decide(snapshots, method, params.association, model,
+                                           params.associate.keep_probability)
     pairs = table_association.pairs_table(snapshots, decisions)
     fused = table_association.fused_table(snapshots, decisions, frame, params.associate.fusion_criterion)
     io.write_parquet(pairs, pairs_out)

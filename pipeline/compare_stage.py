@@ -6,7 +6,8 @@ first by OSPA, and GOSPA with its parts and the identity metrics (`pipeline.gosp
 by GOSPA; on the multi-target scenes, GOSPA with its parts, switches and fragmentation
 (`reports/scene_metrics.json`, `pipeline.scene_evaluation`); and each one's position error at
 the other radar sites against the training site's (`reports/site_metrics.json`,
-`pipeline.site_report`). Hold-out: the windows the
+`pipeline.site_report`). Two radars: their tracks associated and fused, the fused picture against each radar alone and the oracle
+association (`reports/fusion.json`, `pipeline.fusion_tables`). Hold-out: the windows the
 networks were scored on (`reports/models.json`), run through each tuned filter
 (`models/kalman_tuned.json`):
 - filter: the estimate of each window's last plot, the filters fed the window's plots with
@@ -22,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import (baselines, batch_filters, figures, filter_holdout, io, kalman_net, materials, model_eval,
-                      site_report, windows)
+from pipeline import (baselines, batch_filters, figures, filter_holdout, fusion_tables, io, kalman_net, materials,
+                      model_eval, site_report, windows)
 from pipeline.classical_filters import FilterSettings, load_settings
 from pipeline.gradient_tuning import TunedFilter
 from pipeline.torch_filters import FilterSpec
@@ -344,6 +345,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
     sites = site_report.site_comparison(_read_json(reports_dir / "site_metrics.json", "evaluate_sites"))
     scenes = _read_json(reports_dir / "scene_metrics.json", "evaluate_scenes")
+    fusion = _read_json(reports_dir / "fusion.json", "fusion")
     networks = _read_json(reports_dir / "models.json", "models_report")
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
@@ -370,7 +372,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                   "scenes": {**{key: scenes[key] for key in ("scenes", "aircraft_per_scene", "duration_s", "plots",
                                                              "example")},
                              "runs": {name: {m: values.get(m) for m in SCENE_METRICS}
-                                      for name, values in scenes["runs"].items()}}}
+                                      for name, values in scenes["runs"].items()}},
+                  "fusion": fusion}
     site_part = sites_section(sites, runs)
     gospa_part = gospa_table(runs)
     text = "\n\n".join([
@@ -394,6 +397,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         scenes_table(comparison["scenes"]["runs"]), "![A busy scene: tracks by identity, switches marked]"
                                                    "(scene_example.png)",
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
+        f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png"),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         "## The network-scaled Kalman filter against filters tuned by gradient descent and by Nelder-Mead",
         SCALED_INTRO, *scaled_filter_tables(scaled),

@@ -434,6 +434,7 @@ class Associate:
     velocity_baseline_s: float      # velocity from the last update and the latest one at least this much earlier
     acceleration_std_mps2: float    # white-noise acceleration of the extrapolation to the common time
     fusion_criterion: str           # covariance intersection minimises this (track_fusion.CRITERIA)
+    keep_probability: float         # the keep gate of association with memory (association_memory)
 
 
 @dataclass(frozen=True)
@@ -459,6 +460,8 @@ class Fusion:
     window_m: float
     methods: tuple[str, ...]
     radars: tuple[FusionRadar, FusionRadar]
+    sweep_scenes: int                     # the first this many scenes in the bias sweep (fusion_bias_sweep)
+    sweep_bias_m: tuple[float, ...]       # radar 2's registration bias lengths there, m
 
 
 @dataclass(frozen=True)
@@ -1126,6 +1129,15 @@ def _kalman_net(tree: Mapping[str, Any], splits: tuple[Split, ...]) -> KalmanNet
         noise_scales=tuple(float(v) for v in scales), noise_seed=_integer(tree, "noise_seed", p))
 
 
+def _bias_lengths(tree: Mapping[str, Any], key: str, p: str) -> tuple[float, ...]:
+    """A non-empty list of finite non-negative bias lengths (m)."""
+    biases = _get(tree, key, p)
+    if (not isinstance(biases, list) or not biases or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf for v in biases)):
+        raise ParamError(f"{p}.{key} = {biases!r}: must list non-negative numbers")
+    return tuple(float(v) for v in biases)
+
+
 def _association(tree: Mapping[str, Any]) -> Association:
     """Checked before anything trains: the target count fits the scene tensor, the double threshold fits the
     track history, the scene tensor is large enough for the network's convolutions."""
@@ -1148,10 +1160,6 @@ def _association(tree: Mapping[str, Any]) -> Association:
     if (not isinstance(noise, list) or len(noise) != 2 or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in noise)):
         raise ParamError(f"{p}.noise_m = {noise!r}: must be two positive numbers (radar 1's and radar 2's sigma)")
-    biases = _get(tree, "eval_bias_m", p)
-    if (not isinstance(biases, list) or not biases or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf for v in biases)):
-        raise ParamError(f"{p}.eval_bias_m = {biases!r}: must list non-negative numbers")
     return Association(
         targets=(int(low), int(high)), area_m=_positive(tree, "area_m", p),
         scan_period_s=_positive(tree, "scan_period_s", p), track_points=track_points,
@@ -1159,7 +1167,7 @@ def _association(tree: Mapping[str, Any]) -> Association:
         detection_probability=_number(tree, "detection_probability", p, 0.0, 1.0, low_open=True),
         speed_mps=_positive_interval(tree, "speed_mps", p),
         acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), tracks=tracks,
-        train_bias_m=_interval(tree, "train_bias_m", p), eval_bias_m=tuple(float(v) for v in biases),
+        train_bias_m=_interval(tree, "train_bias_m", p), eval_bias_m=_bias_lengths(tree, "eval_bias_m", p),
         eval_scenes=_integer(tree, "eval_scenes", p, 1), eval_seed=_integer(tree, "eval_seed", p),
         gate_probability=_number(tree, "gate_probability", p, 0.0, 1.0, low_open=True, high_open=True),
         double_threshold_hits=hits, max_bias_m=_positive(tree, "max_bias_m", p),
@@ -1224,7 +1232,8 @@ def _associate(tree: Mapping[str, Any]) -> Associate:
         raise ParamError(f"{p}.fusion_criterion = {criterion!r}: must be one of {FUSION_CRITERIA}")
     return Associate(step_s=_positive(tree, "step_s", p), max_age_s=max_age,
                      velocity_baseline_s=_positive(tree, "velocity_baseline_s", p),
-                     acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion)
+                     acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion,
+                     keep_probability=_number(tree, "keep_probability", p, 0.0, 1.0, low_open=True, high_open=True))
 
 
 FUSION_BIAS_KEYS = ("bias_range_m", "bias_azimuth_deg", "bias_east_m", "bias_north_m")
@@ -1269,8 +1278,13 @@ def _fusion(tree: Mapping[str, Any], radar_tree: Mapping[str, Any]) -> Fusion:
     if (not isinstance(methods, list) or not methods or not set(methods) <= set(ASSOCIATION_METHODS)
             or len(set(methods)) != len(methods)):
         raise ParamError(f"{p}.methods = {methods!r}: must list distinct methods of {ASSOCIATION_METHODS}")
-    return Fusion(scenes=_integer(tree, "scenes", p, 1), tracker=tracker, window_m=_positive(tree, "window_m", p),
-                  methods=tuple(methods), radars=radars)
+    scenes = _integer(tree, "scenes", p, 1)
+    sweep_scenes = _integer(tree, "sweep_scenes", p, 1)
+    if sweep_scenes > scenes:
+        raise ParamError(f"{p}.sweep_scenes = {sweep_scenes}: must be at most {p}.scenes = {scenes} (the sweep reads "
+                         "the fusion stage's first scenes)")
+    return Fusion(scenes=scenes, tracker=tracker, window_m=_positive(tree, "window_m", p), methods=tuple(methods),
+                  radars=radars, sweep_scenes=sweep_scenes, sweep_bias_m=_bias_lengths(tree, "sweep_bias_m", p))
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:
@@ -1310,6 +1324,10 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
     unknown = tree.unread()
     if unknown:
         raise ParamError("; ".join(unknown))
+    if params.associate.keep_probability < params.association.gate_probability:
+        raise ParamError(f"associate.keep_probability = {params.associate.keep_probability}: must be at least "
+                         f"association.gate_probability = {params.association.gate_probability} (a pair is kept "
+                         "on a gate no tighter than the one it was formed on)")
     return params
 
 

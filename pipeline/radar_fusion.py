@@ -11,7 +11,7 @@ Per scene (the first `fusion.scenes` of `scenes.plan_scene`, planned around para
 2. Each radar's plots alone are tracked with `fusion.tracker` (`track_command.track_recording`, the `track`
    command's code), giving a track table with position covariances.
 3. Both tables at common times (`common_time_states`, params `associate`), associated by each of
-   `fusion.methods` and by the oracle (a pair when both tracks' majority target, over their confirmed
+   `fusion.methods` with memory (`table_association.decide`, `association_memory`) and by the oracle (a pair when both tracks' majority target, over their confirmed
    updates' plots, is the same aircraft), then fused (`table_association.picture`).
 4. GOSPA (`gospa.gospa`, cutoff and order of params `evaluate`) at each common time between the truth and
    each picture: radar 1's tracks alone, radar 2's alone, each method's fused picture, the oracle's. The
@@ -141,22 +141,27 @@ def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
     return np.array([len(got & true), len(got - true), len(true - got)])
 
 
+def radar_tracks(params: Params, fusion_radar: FusionRadar, scene_id: int, routes: pa.Table, models_dir: Path
+                 ) -> tuple[TrackTable, dict[int, int], tuple[np.ndarray, np.ndarray]]:
+    """One radar's track table of the scene, each track's majority target, and its detections (target ids,
+    plot times)."""
+    plots = radar_plots(params, fusion_radar, scene_id, routes)
+    believed = believed_radar(fusion_radar)
+    recording = plot_table(plots, {fusion_radar.radar.radar_id: believed}, f"scene {scene_id}")
+    tracks = track_recording(recording, params.fusion.tracker, params.fusion.window_m, params, models_dir)
+    table = track_table(tracks, {fusion_radar.radar.radar_id: geodesy.radar_site_ecef(believed)},
+                        Path(f"scene {scene_id} radar {fusion_radar.radar.radar_id} tracks"))
+    return table, majority_targets(tracks, plots), (plots.column("target_id").to_numpy(),
+                                                    plots.column("time_unix_s").to_numpy())
+
+
 def local_tracks(params: Params, scene_id: int, routes: pa.Table, models_dir: Path
                  ) -> tuple[list[TrackTable], list[dict[int, int]], tuple[np.ndarray, np.ndarray]]:
     """Each radar's track table of the scene, each track's majority target, and all radars' detections
     (target ids, plot times)."""
-    fusion = params.fusion
-    tables, targets, detections = [], [], []
-    for fusion_radar in fusion.radars:
-        plots = radar_plots(params, fusion_radar, scene_id, routes)
-        believed = believed_radar(fusion_radar)
-        recording = plot_table(plots, {fusion_radar.radar.radar_id: believed}, f"scene {scene_id}")
-        tracks = track_recording(recording, fusion.tracker, fusion.window_m, params, models_dir)
-        tables.append(track_table(tracks, {fusion_radar.radar.radar_id: geodesy.radar_site_ecef(believed)},
-                                  Path(f"scene {scene_id} radar {fusion_radar.radar.radar_id} tracks")))
-        targets.append(majority_targets(tracks, plots))
-        detections.append((plots.column("target_id").to_numpy(), plots.column("time_unix_s").to_numpy()))
-    return tables, targets, tuple(np.concatenate(parts) for parts in zip(*detections))
+    tables, targets, detections = zip(*(radar_tracks(params, fusion_radar, scene_id, routes, models_dir)
+                                        for fusion_radar in params.fusion.radars))
+    return list(tables), list(targets), tuple(np.concatenate(parts) for parts in zip(*detections))
 
 
 def scene_scores(params: Params, scene_id: int, models_dir: Path,
@@ -167,7 +172,8 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
     tables, targets, detected = local_tracks(params, scene_id, routes, models_dir)
     frame = common_frame(*tables)
     snapshots = common_snapshots(*tables, frame, params.associate)
-    decisions = {method: table_association.decide(snapshots, method, params.association, model)
+    decisions = {method: table_association.decide(snapshots, method, params.association, model,
+                                                    params.associate.keep_probability)
                  for method in params.fusion.methods}
     decisions[ORACLE] = [Decision(oracle_pairs(s, (targets[0], targets[1])), None) for s in snapshots]
     radar_names = [f"radar_{r.radar.radar_id}" for r in params.fusion.radars]

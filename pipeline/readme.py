@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from pipeline import compare_stage, io
+from pipeline import compare_stage, fusion_tables, io
 from pipeline.data_summary import THESIS_TEST_FALSE_PLOTS, THESIS_TEST_TARGET_PLOTS
 from pipeline.params import STRATEGIES
 from pipeline.tracker_metrics import markdown_table
@@ -116,8 +116,8 @@ def tracker_table(summary: dict) -> str:
 def comparison_section(comparison: dict) -> str:
     """Who wins, every tracker in one table, track continuity, GOSPA and its parts (reports before
     GOSPA have none), the many-aircraft scenes (reports before them have none), the networks against
-    the tuned filters, and each tracker's position error at the other radar sites (reports before
-    `evaluate_sites` have none)."""
+    the tuned filters, each tracker's position error at the other radar sites (reports before
+    `evaluate_sites` have none), and the two radars' fused picture (reports before the fusion stage have none)."""
     gospa = compare_stage.gospa_table(comparison["trackers"])
     return "\n\n".join([
         "\n".join(compare_stage.verdict(comparison["trackers"], comparison["holdout"])),
@@ -132,7 +132,9 @@ def comparison_section(comparison: dict) -> str:
           if "scenes" in comparison else []),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         compare_stage.holdout_table(comparison["holdout"]),
-        *compare_stage.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"])])
+        *compare_stage.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"]),
+        *([f"{fusion_tables.TITLE}:", *fusion_tables.fusion_section(comparison["fusion"], "reports/fusion_bias.png")]
+          if "fusion" in comparison else [])])
 
 
 SECTIONS = (

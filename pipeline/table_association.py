@@ -12,6 +12,8 @@ heights of surveillance radars are poor and the chi-square gates of params `asso
 - `network`: the trained network (`association_net.associate_network`); beyond `association.scene_size` tracks
   of a user at a time, each first-user track is read in the scene of its nearest tracks
   (`association_net.scene_probabilities`).
+Every method's pairs are then continued from the last common time's and the tracks it left unpaired that pass
+the keep gate paired (`association_memory`, params `associate.keep_probability`), the same for every method.
 Each pair's `statistic` is the chi-square statistic Δᵀ (P1 + P2)⁻¹ Δ of the pair at that time (d = 4, after the
 offset's removal for bias_robust).
 
@@ -28,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import association_net, geodesy, io
+from pipeline.association_memory import horizontal, with_memory
 from pipeline.bias_robust_association import associate_bias_robust
 from pipeline.common_time_states import Frame, Snapshot
 from pipeline.params import Association
@@ -36,7 +39,6 @@ from pipeline.track_association import associate_double_threshold, associate_sta
 from pipeline.track_command import COVARIANCE_COLUMNS, POSITION_COLUMNS, covariance_columns
 from pipeline.track_fusion import fuse_pairs
 
-HORIZONTAL = np.array([0, 1, 3, 4])  # [e, n, ve, vn] of [e, n, u, ve, vn, vu]
 SOURCES = ("fused", "first", "second")  # a picture row: a fused pair, or one user's unpaired track
 
 PAIRS_SCHEMA = io.schema(
@@ -72,11 +74,6 @@ class Decision:
     bias_m: np.ndarray | None
 
 
-def horizontal(states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """[e, n, ve, vn] states (N, 4) and covariances (N, 4, 4) of full ones (N, 6), (N, 6, 6)."""
-    return states[:, HORIZONTAL], covariances[:, HORIZONTAL[:, None], HORIZONTAL[None, :]]
-
-
 def _double_threshold(history: list[Snapshot], association: Association) -> np.ndarray:
     """Pairs (rows of the last snapshot) of the tracks present at every snapshot of `history`."""
     rows = []
@@ -93,8 +90,9 @@ def _double_threshold(history: list[Snapshot], association: Association) -> np.n
 
 
 def decide(snapshots: list[Snapshot], method: str, association: Association,
-           model: association_net.AssociationNet | None) -> list[Decision]:
-    """Each snapshot's pairs by `method` (module docstring); `model` is needed by `network` only."""
+           model: association_net.AssociationNet | None, keep_probability: float) -> list[Decision]:
+    """Each snapshot's pairs by `method` (module docstring), continued with memory (`association_memory`, keep gate
+    at `keep_probability`); `model` is needed by `network` only."""
     history_length = association.track_points - 1
     decisions = []
     for index, snapshot in enumerate(snapshots):
@@ -118,7 +116,8 @@ def decide(snapshots: list[Snapshot], method: str, association: Association,
         else:
             pairs = association_net.associate_network(model, x1, p1, x2, p2, association.decision_threshold)
         decisions.append(Decision(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bias))
-    return decisions
+    continued = with_memory(snapshots, [d.pairs for d in decisions], [d.bias_m for d in decisions], keep_probability)
+    return [Decision(pairs, decision.bias_m) for pairs, decision in zip(continued, decisions)]
 
 
 def _scenario_column(scenario_id: int, count: int) -> pa.Array:

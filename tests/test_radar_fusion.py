@@ -12,7 +12,7 @@ from pipeline import geodesy, radar_fusion
 from pipeline.params import ParamError
 from tests import tracker_fixtures as tf
 
-SMALL = {"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1,
+SMALL = {"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1, "fusion.sweep_scenes": 1,
          "fusion.methods": ["statistical", "bias_robust"]}
 
 
@@ -66,6 +66,16 @@ def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():
 def test_bad_fusion_radars_name_the_entry_key_and_value(radars, named):
     with pytest.raises(ParamError, match=re.escape(named)):
         tf.make_params({"fusion.radars": radars})
+
+
+@pytest.mark.parametrize("changes, named", [
+    ({"fusion.scenes": 1, "fusion.sweep_scenes": 2}, "fusion.sweep_scenes = 2: must be at most fusion.scenes = 1"),
+    ({"fusion.sweep_bias_m": [0.0, -50.0]}, "fusion.sweep_bias_m = [0.0, -50.0]: must list non-negative numbers"),
+    ({"fusion.sweep_bias_m": []}, "fusion.sweep_bias_m = []: must list non-negative numbers"),
+])
+def test_bad_bias_sweep_params_name_the_key_and_value(changes, named):
+    with pytest.raises(ParamError, match=re.escape(named)):
+        tf.make_params(changes)
 
 
 def test_a_picture_score_counts_gospa_its_shares_and_a_switch_of_identity():
