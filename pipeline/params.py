@@ -418,7 +418,7 @@ class LSTMUpdate:
     epochs: int
     learning_rate: float
     seed: int
-    calibration_segments: int
+    validation_fraction: float
     calibration_ages: int
     calibration_gaps: int
     turn_share: float
@@ -1209,7 +1209,8 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
         restart_gap_s=_positive(tree, "restart_gap_s", p), burn_in_updates=burn_in, segment_plots=segment_plots,
         truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
         epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
-        seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
+        seed=_integer(tree, "seed", p),
+        validation_fraction=_number(tree, "validation_fraction", p, 0.0, 1.0, low_open=True, high_open=True),
         calibration_ages=ages, calibration_gaps=_integer(tree, "calibration_gaps", p, 1),
         turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
         range_shares=tuple(float(v) for v in shares))

@@ -196,3 +196,18 @@ def test_gate_factor_lets_through_the_gate_probability_of_gaussian_innovations()
     innovation = torch.as_tensor(np.einsum("nij,nj->ni", np.linalg.cholesky((4 * C + R).numpy()),
                                            rng.normal(size=(20000, 3))))
     assert lstm_update._gate_factor(innovation, C, R, 0.99) == pytest.approx(4.0, rel=0.15)
+
+
+def test_estimate_factors_recover_the_spread_and_plot_shares_of_gaussian_errors():
+    """Errors drawn from N(0, 2 C + 0.5 R): the maximum-likelihood factors are about 2 and 0.5, and
+    their mean NEES is exactly 3, the dimension."""
+    rng = np.random.default_rng(7)
+    factor = rng.normal(size=(20000, 3, 3)) * 30.0
+    C = torch.as_tensor(factor @ factor.transpose(0, 2, 1))
+    R = torch.as_tensor(np.diag([2500.0, 40000.0, 90000.0])[None] * rng.uniform(0.5, 2.0, (20000, 1, 1)))
+    floor = torch.eye(3, dtype=torch.float64)
+    error = torch.as_tensor(np.einsum("nij,nj->ni", np.linalg.cholesky((2 * C + 0.5 * R + floor).numpy()),
+                                      rng.normal(size=(20000, 3))))
+    a, b = lstm_update._estimate_factors(error, C, R, floor)
+    assert a == pytest.approx(2.0, rel=0.1) and b == pytest.approx(0.5, rel=0.1)
+    assert float(lstm_update._distance(error, a * C + b * R + floor).mean()) == pytest.approx(3.0, rel=1e-4)
