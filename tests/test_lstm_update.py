@@ -211,3 +211,20 @@ def test_estimate_factors_recover_the_spread_and_plot_shares_of_gaussian_errors(
     a, b = lstm_update._estimate_factors(error, C, R, floor)
     assert a == pytest.approx(2.0, rel=0.1) and b == pytest.approx(0.5, rel=0.1)
     assert float(lstm_update._distance(error, a * C + b * R + floor).mean()) == pytest.approx(3.0, rel=1e-4)
+
+
+def test_compare_puts_the_lstm_update_in_the_estimator_table_with_every_column():
+    """The compare stage's hold-out table: one row per estimator, best first, with turns, straight
+    flight, ANEES (marked when inside its bounds) and the share within each share of the range."""
+    from pipeline.compare_stage import estimator_table
+
+    def scored(mean: float, anees: float) -> dict:
+        return {"mean_error_m": mean, "rmse_m": mean * 1.3, "p95_error_m": mean * 2.7, "anees": anees,
+                "anees_bounds": [2.94, 3.06], "anees_inside": 2.94 <= anees <= 3.06, "turn_mean_error_m": mean * 1.1,
+                "straight_mean_error_m": mean * 0.9, "turn_windows": 7, "within_range_share": {"0.05": 1.0, "0.001": 0.6}}
+    table = estimator_table({"windows": 70, "filters": {"IMM (CV + CA), Nelder-Mead tuned": scored(156.3, 3.71),
+                                                        "LSTM update": scored(144.5, 3.01)}}).splitlines()
+    assert table[0] == ("| estimator | mean error (m) | RMSE (m) | 95th percentile (m) | turns (m) | straight (m) | "
+                        "ANEES (95 % bounds 2.94-3.06) | within 5.0% of range | within 0.1% of range |")
+    assert table[2] == "| LSTM update | 144.5 | 187.8 | 390.2 | 159.0 | 130.1 | 3.01 in | 100.0% | 60.0% |"
+    assert table[3].startswith("| IMM (CV + CA), Nelder-Mead tuned | 156.3 |") and "| 3.71 |" in table[3]
