@@ -5,8 +5,8 @@ stage: the split's target plots less the windows stage's hold-out segments and l
 validation segments (`validation_split`: `validation_fraction` of the others), restarted at gaps
 and every `segment_plots` plots. Then the MC-dropout covariance is calibrated (for the estimate,
 and for the prediction to the tracker's gate, `tracker.kalman_gate_probability`) on the validation
-segments' windows of `calibration_ages` + 1 plots (the last predicted at that age), one started at
-every plot as the hold-out's are
+segments' windows of `segment_plots` plots (as long as the training sequences, so the oldest ages'
+factors see old tracks), one started at every plot as the hold-out's are
 (`lstm_update.calibrate`), and the estimator is scored on
 the hold-out windows against the Nelder-Mead tuned CA filter it starts from and the tuned IMM
 (`models/kalman_tuned.json`) with `filter_holdout.compare_detailed`. Everything that can fail on bad
@@ -54,11 +54,10 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
     batch = training_segments(plots, validation_split.without(held, validation), params.radar, u.restart_gap_s,
                               u.burn_in_updates, params.tracker.kalman_gate_probability,
                               params.tracker.young_track_plots, u.segment_plots, u.truncation_steps, "lstm_update")
-    validation_windows = filter_holdout.window_batch(validation, params.radar, u.calibration_ages + 1)  # the last
-    # prediction's age is calibration_ages
+    validation_windows = filter_holdout.window_batch(validation, params.radar, u.segment_plots)
     if not len(validation_windows.times):
         raise io.InputError(f"lstm_update.validation_fraction = {u.validation_fraction}: no validation segment has "
-                            f"lstm_update.calibration_ages + 1 = {u.calibration_ages + 1} plots")
+                            f"lstm_update.segment_plots = {u.segment_plots} plots")
     tuned_path = models_dir / "kalman_tuned.json"
     if not tuned_path.is_file():
         raise io.InputError(f"{tuned_path}: file not found (run `dvc repro tune_kalman`)")

@@ -1189,6 +1189,9 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
     if burn_in >= segment_plots:
         raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot sequence to score")
     ages = _integer(tree, "calibration_ages", p, 1)
+    if ages >= segment_plots:
+        raise ParamError(f"{p}.calibration_ages = {ages}: not younger than the validation windows it is fitted on "
+                         f"(segment_plots = {segment_plots})")
     shares = _get(tree, "range_shares", p)
     if (not isinstance(shares, list) or not shares or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf for v in shares)):

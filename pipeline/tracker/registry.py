@@ -126,11 +126,15 @@ def _classical(name: str, kind: str, global_nearest: bool):
 
 
 def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-    """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance."""
+    """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance,
+    young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
+    (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
+    covariance rather than the `window_m` ball, which let clutter through to confirmed tracks (issue 18)."""
     from pipeline.tracker.gate import ChiSquareGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed),
-                        ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params)
+    gate = ChiSquareGate(params.kalman_gate_probability)
+    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed), gate,
+                        params.young_track_plots, window_m, params, young_gate=gate)
 
 
 def _kalman_net(name: str, global_nearest: bool):
