@@ -17,7 +17,6 @@ input (params, material, the tuned filters, the tracking store) fails before tra
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict
 from pathlib import Path
 
 from pipeline import (experiment_tracking, filter_holdout, io, kalman_net, lstm_update, materials, model_eval, simulate,
@@ -63,14 +62,11 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
         raise io.InputError(f"{tuned_path}: file not found (run `dvc repro tune_kalman`)")
     tuned = load_settings(tuned_path)
     holdout = model_eval.holdout_plots(holdout_table, params.radar)
-    logger = experiment_tracking.lightning_logger(params, "train_lstm_update", "train-lstm-update", plots_path)
     torch.set_num_threads(params.training.threads)
-    log.info("train_lstm_update: %d segments of up to %d plots (%d scored), %d validation windows, MLflow run %s "
-             "in %s", len(batch.times), batch.times.shape[1], int(batch.scored.sum()), len(validation_windows.times),
-             logger.run_id,
-             experiment_tracking.tracking_uri(params.training.tracking_uri))
-    try:
-        logger.log_hyperparams({f"lstm_update.{key}": value for key, value in asdict(u).items()})
+    described = (f"{len(batch.times)} segments of up to {batch.times.shape[1]} plots ({int(batch.scored.sum())} "
+                 f"scored), {len(validation_windows.times)} validation windows")
+    with experiment_tracking.filter_training_run(params, "train_lstm_update", "train-lstm-update", plots_path,
+                                                 "lstm_update", u, described) as logger:
         torch.manual_seed(u.seed)
         model = LSTMUpdate(estimator_config(params))
         losses, seconds = descend(model, "lstm_update", batch,
@@ -99,10 +95,6 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
                                if isinstance(value, float)}})
         logger.experiment.log_artifact(logger.run_id, str(models_dir / "lstm_update.pt"))
         logger.experiment.log_artifact(logger.run_id, str(reports_dir / "lstm_update.json"))
-    except BaseException:
-        logger.experiment.set_terminated(logger.run_id, "FAILED")
-        raise
-    logger.finalize("success")
     log.info("train_lstm_update: %.1f m on training after %d epochs (%.0f s); hold-out %s", losses[-1], u.epochs,
              seconds, ", ".join(f"{name} {v['mean_error_m']:.1f} m (turns {v['turn_mean_error_m']:.1f} m, ANEES "
                                 f"{v['anees']:.2f})" for name, v in holdout_scores["filters"].items()))
