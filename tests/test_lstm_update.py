@@ -228,3 +228,27 @@ def test_compare_puts_the_lstm_update_in_the_estimator_table_with_every_column()
                         "ANEES (95 % bounds 2.94-3.06) | within 5.0% of range | within 0.1% of range |")
     assert table[2] == "| LSTM update | 144.5 | 187.8 | 390.2 | 159.0 | 130.1 | 3.01 in | 100.0% | 60.0% |"
     assert table[3].startswith("| IMM (CV + CA), Nelder-Mead tuned | 156.3 |") and "| 3.71 |" in table[3]
+
+
+def test_bounded_gate_rejects_a_plot_beyond_the_window_however_wide_the_covariance():
+    """The LSTM update's gate: with a covariance of 100 km per axis the chi-square gate alone takes a
+    plot 5 km off the prediction; bounded by a 4 km window it does not, and a plot 1 km off stays in."""
+    from pipeline.tracker.estimator import Prediction
+    from pipeline.tracker.gate import BoundedChiSquareGate, ChiSquareGate
+    from pipeline.tracker.management import ThesisWeights
+    from pipeline.tracker.tracks import LiveTracks
+    from tests import tracker_fixtures as tf
+
+    params = tf.make_params()
+    from pipeline import geodesy
+    site = geodesy.radar_site_ecef(params.radar)
+    offsets = np.array([[100e3, 0.0, 0.0], [100e3, 5000.0, 0.0], [100e3, 1000.0, 0.0]])
+    features = np.column_stack([np.arange(3) * 6.0, site + offsets, np.linalg.norm(offsets, axis=1)])
+    plots = tf.plots_of(features, np.arange(3), params.radar)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
+    slots = np.array([live.start(0)])
+    wide = Prediction(plots.position[:1], np.eye(3)[None] * 1e10, None)
+    assert np.isfinite(ChiSquareGate(0.999)(live, slots, 1, wide).errors[0])
+    bounded = BoundedChiSquareGate(0.999, 4000.0)
+    assert np.isinf(bounded(live, slots, 1, wide).errors[0])
+    assert np.isfinite(bounded(live, slots, 2, wide).errors[0])
