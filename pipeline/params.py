@@ -253,6 +253,7 @@ class TrackerParams:
     delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
     opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
     mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
+    lstm_update_gate_m: float  # the LSTM update's chi-square gate never beyond this of the prediction (issue 18)
 
 
 @dataclass(frozen=True)
@@ -938,6 +939,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         delete_after_s=_positive(tree, "delete_after_s", p),
         opportunity_s=radar.scan_period_s,
         mature_first=_boolean(tree, "mature_first", p),
+        lstm_update_gate_m=_positive(tree, "lstm_update_gate_m", p),
     )
     if tracker.confirm_m > tracker.confirm_n:
         raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")

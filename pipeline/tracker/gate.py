@@ -102,8 +102,7 @@ class BoundedChiSquareGate(ChiSquareGate):
     """The chi-square gate, and the plot within `window_m` of the prediction: for an estimator whose
     covariance can grow without bound on input unlike its training material (the LSTM update's
     MC-dropout spread on a track fed clutter, issue 18: such a gate took plots ever further off, and
-    clutter tracks ran 170-310 km from any aircraft); `window_m` is the young-track radius, the
-    furthest every method lets a track's next plot be from its last."""
+    clutter tracks ran 170-310 km from any aircraft)."""
 
     def __init__(self, probability: float, window_m: float) -> None:
         super().__init__(probability)

@@ -130,10 +130,10 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
     (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
     covariance rather than the `window_m` ball, which let clutter through to confirmed tracks (issue 18);
-    and never beyond `window_m` of the prediction (`BoundedChiSquareGate`)."""
+    and never beyond `tracker.lstm_update_gate_m` of the prediction (`BoundedChiSquareGate`)."""
     from pipeline.tracker.gate import BoundedChiSquareGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    gate = BoundedChiSquareGate(params.kalman_gate_probability, window_m)
+    gate = BoundedChiSquareGate(params.kalman_gate_probability, params.lstm_update_gate_m)
     return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed), gate,
                         params.young_track_plots, window_m, params, young_gate=gate)
 
