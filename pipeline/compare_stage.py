@@ -14,6 +14,11 @@ networks were scored on (`reports/models.json`), run through each tuned filter
   their converted-measurement covariance;
 - predictor: the next true state, the filters fed the window's true states (measurement
   sigma `training.kalman_truth_sigma_m`), then predicted to the next state's time.
+The learned estimators (the network-scaled filter, issue 17; the LSTM update, issue 18) and the
+gradient- and Nelder-Mead tuned filters in one table on the same hold-out windows
+(`filter_holdout.compare_detailed`: error, turns against straight flight, ANEES and its bounds,
+the share within a share of the range), the LSTM update's MC-dropout masks drawn from
+`lstm_update.seed` as in its own stage, so its row repeats `reports/lstm_update.json`.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from pipeline import (baselines, batch_filters, figures, filter_holdout, fusion_tables, io, kalman_net, materials,
-                      model_eval, site_report, windows)
+from pipeline import (baselines, batch_filters, figures, filter_holdout, fusion_tables, io, kalman_net, lstm_update,
+                      materials, model_eval, site_report, windows)
 from pipeline.classical_filters import FilterSettings, load_settings
 from pipeline.gradient_tuning import TunedFilter
 from pipeline.torch_filters import FilterSpec
@@ -84,21 +90,32 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
 
 
 GRADIENT_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "singer": "Singer", "imm": "IMM (CV + CA)"}
+SCALED_TITLE = "Learned estimators against filters tuned by gradient descent and by Nelder-Mead"
 SCALED_INTRO = (
     "The network-scaled Kalman filter (issue 17, seed 003: a small network scales Q, R and Singer's manoeuvre "
-    "frequency at each step, `pipeline/kalman_net.py`), the same torch filters with Q, an R scale and the initial "
-    "spreads tuned by gradient descent on the same loss, data and truncation (`pipeline/gradient_tuning.py`; both "
-    "`dvc repro train_kalman_net`, trained without the hold-out segments), and the Nelder-Mead tuned filters "
-    "(`tune_kalman`, tuned on the whole train split, hold-out included), on the hold-out windows of the table "
+    "frequency at each step, `pipeline/kalman_net.py`), the LSTM update on a CA Kalman prediction (issue 18, "
+    "seed 001: an LSTM cell in place of the measurement update, its covariance from Monte-Carlo dropout, "
+    "`pipeline/lstm_update.py`, `dvc repro train_lstm_update`), the same torch filters with Q, an R scale and the "
+    "initial spreads tuned by gradient descent on the same loss, data and truncation (`pipeline/gradient_tuning.py`; "
+    "`dvc repro train_kalman_net`; the learned ones trained without the hold-out segments), and the Nelder-Mead tuned "
+    "filters (`tune_kalman`, tuned on the whole train split, hold-out included), on the hold-out windows of the table "
     "above: each filter started at a window's first plot, scored at its last (`pipeline/filter_holdout.py`). "
-    "NEES: the position error's e' P^-1 e with the filter's own covariance, 3 if it tells the truth.")
+    "Turns: the windows of lowest truth linearity (share `lstm_update.turn_share`), straight: the rest. "
+    "NEES: the position error's e' P^-1 e with the filter's own covariance, 3 if it tells the truth; **in**: the "
+    "ANEES inside its chi-square 95 % bounds. Within x % of range: the share of windows whose error is at most x % of "
+    "the target's true range (seed 001's accuracy measure).")
 
 
 def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings]) -> dict[str, filter_holdout.FilterRun]:
-    """The network-scaled filter, each gradient-tuned filter and each Nelder-Mead tuned one, by label."""
+    """The LSTM update (first: its dropout masks are the first drawn, as in its stage), the network-scaled
+    filter, each gradient-tuned filter and each Nelder-Mead tuned one, by label."""
+    lstm_path = models_dir / "lstm_update.pt"
+    if not lstm_path.is_file():
+        raise io.InputError(f"{lstm_path}: file not found (run `dvc repro train_lstm_update`)")
     network = kalman_net.load(models_dir / "kalman_net.pt")
     gradient = _read_json(models_dir / "kalman_gradient.json", "train_kalman_net")
-    runs: dict[str, filter_holdout.FilterRun] = {f"network-scaled {network.config.base}": network}
+    runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": lstm_update.load(lstm_path),
+                                                 f"network-scaled {network.config.base}": network}
     for kind, values in gradient.items():
         runs[f"{GRADIENT_LABELS[kind]}, gradient-tuned"] = TunedFilter.from_dict(values)
     for kind, settings in tuned.items():
@@ -107,36 +124,50 @@ def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings]) -> dict[s
     return runs
 
 
-def scaled_filter_tables(result: dict) -> list[str]:
-    """The hold-out scores and the mean error against the noise factor, as two tables."""
-    forms = (("mean_error_m", "{:.1f}"), ("rmse_m", "{:.1f}"), ("p95_error_m", "{:.1f}"), ("anees", "{:.2f}"))
-    scored = ["| filter | mean error (m) | RMSE (m) | 95th percentile (m) | ANEES |", "|---|---|---|---|---|"]
-    for name, values in sorted(result["filters"].items(), key=lambda item: item[1]["mean_error_m"]):
-        scored.append(f"| {name} | " + " | ".join(form.format(values[key]) for key, form in forms) + " |")
+def estimator_table(detailed: dict) -> str:
+    """The hold-out's `filter_holdout.detailed_scores` of every estimator, best mean error first."""
+    forms = (("mean_error_m", "{:.1f}"), ("rmse_m", "{:.1f}"), ("p95_error_m", "{:.1f}"), ("turn_mean_error_m", "{:.1f}"),
+             ("straight_mean_error_m", "{:.1f}"))
+    shares = list(next(iter(detailed["filters"].values()))["within_range_share"])
+    low, high = next(iter(detailed["filters"].values()))["anees_bounds"]
+    lines = ["| estimator | mean error (m) | RMSE (m) | 95th percentile (m) | turns (m) | straight (m) | "
+             f"ANEES (95 % bounds {low:.2f}-{high:.2f}) | " + " | ".join(f"within {float(share):.1%} of range"
+                                                                       for share in shares) + " |",
+             "|---" * (7 + len(shares)) + "|"]
+    for name, values in sorted(detailed["filters"].items(), key=lambda item: item[1]["mean_error_m"]):
+        lines.append(f"| {name} | " + " | ".join(form.format(values[key]) for key, form in forms)
+                     + f" | {values['anees']:.2f}{' in' if values['anees_inside'] else ''} | "
+                     + " | ".join(f"{values['within_range_share'][share]:.1%}" for share in shares) + " |")
+    return "\n".join(lines)
+
+
+def scaled_filter_tables(detailed: dict, result: dict) -> list[str]:
+    """The hold-out scores (`estimator_table`) and the mean error against the noise factor, as two tables."""
     factors = result["noise_factors"]
     noise = ["| filter | " + " | ".join(f"noise x {f:g} (m)" for f in factors) + " |", "|---" * (len(factors) + 1) + "|"]
     for name, errors in result["mean_error_by_noise_m"].items():
         noise.append(f"| {name} | " + " | ".join(f"{e:.1f}" for e in errors) + " |")
-    return ["\n".join(scored),
+    return [estimator_table(detailed),
             f"Mean error with the hold-out plots measured again from the truth, the radar's sigmas times each factor "
             f"(unknown to every filter, which keeps the nominal R; one draw per factor, seed "
             f"`kalman_net.noise_seed`):", "\n".join(noise), "![Mean error against the noise factor](noise_scales.png)"]
 
 
 def scaled_verdict(result: dict) -> list[str]:
-    """The network-scaled filter's hold-out mean error against the best gradient-tuned and the best
-    Nelder-Mead tuned filter (issue 17's goal: 10 % below the former and below the latter)."""
+    """Each learned estimator's (network-scaled filter, LSTM update) hold-out mean error against the
+    best gradient-tuned and the best Nelder-Mead tuned filter (issue 17's goal: 10 % below the former
+    and below the latter; issue 18's: below the tuned CA and IMM)."""
     errors = {name: values["mean_error_m"] for name, values in result["filters"].items()}
-    network = next(name for name in errors if name.startswith("network-scaled"))
     sentences = []
-    for method in ("gradient-tuned", "Nelder-Mead tuned"):
-        group = [name for name in errors if name.endswith(method)]
-        if group:
-            best = min(group, key=errors.get)
-            change = errors[network] / errors[best] - 1.0
-            sentences.append(f"- Hold-out filtering, {network} filter {errors[network]:.1f} m against the best "
-                             f"{method} filter ({best}) {errors[best]:.1f} m: {abs(change):.1%} "
-                             f"{'below' if change < 0 else 'above'}.")
+    for learned in (name for name in errors if name.startswith("network-scaled") or name == "LSTM update"):
+        for method in ("gradient-tuned", "Nelder-Mead tuned"):
+            group = [name for name in errors if name.endswith(method)]
+            if group:
+                best = min(group, key=errors.get)
+                change = errors[learned] / errors[best] - 1.0
+                sentences.append(f"- Hold-out filtering, {learned} filter {errors[learned]:.1f} m against the best "
+                                 f"{method} filter ({best}) {errors[best]:.1f} m: {abs(change):.1%} "
+                                 f"{'below' if change < 0 else 'above'}.")
     return sentences
 
 
@@ -356,9 +387,13 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         if networks[kind]["holdout_windows"] != held[key]:
             raise io.InputError(f"{holdout_path}: {held[key]} {kind} windows, but reports/models.json scored the "
                                 f"{kind} network on {networks[kind]['holdout_windows']}; rerun the train stages")
-    scaled = filter_holdout.compare(holdout, params.radar, params.windows.filter_length,
-                                    scaled_filters(models_dir, filters), params.kalman_net.noise_scales,
-                                    params.kalman_net.noise_seed)
+    estimators = scaled_filters(models_dir, filters)
+    u = params.lstm_update
+    torch.manual_seed(u.seed)  # the LSTM update's dropout masks, as in its stage
+    detailed = filter_holdout.compare_detailed(holdout, params.radar, params.windows.filter_length, estimators,
+                                               u.turn_share, u.range_shares)
+    scaled = filter_holdout.compare(holdout, params.radar, params.windows.filter_length, estimators,
+                                    params.kalman_net.noise_scales, params.kalman_net.noise_seed)
     runs = tracker["runs"]
     comparison = {"trackers": {name: {m: values.get(m) for m in TRACKER_METRICS + GOSPA_METRICS}
                                for name, values in runs.items()},
@@ -369,6 +404,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                   "tuning": {kind: {"cost_before": v["cost_before"], "cost_after": v["cost_after"]}
                              for kind, v in tuning["filters"].items()},
                   "sites": sites, "by_strategy": tracker.get("by_strategy", {}), "scaled_filters": scaled,
+                  "holdout_estimators": detailed,
                   "scenes": {**{key: scenes[key] for key in ("scenes", "aircraft_per_scene", "duration_s", "plots",
                                                              "example")},
                              "runs": {name: {m: values.get(m) for m in SCENE_METRICS}
@@ -380,7 +416,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         f"# Neural and classical trackers on the same {params.evaluate.split} scenarios",
         "Generated by `dvc repro compare` (`python -m pipeline compare`) from `reports/tracker_metrics.json`, "
         "`reports/models.json` and `reports/kalman_tuning.json`; every number comes from `dvc repro`.",
-        "## Who wins", "\n".join(verdict(runs, comparison["holdout"]) + scaled_verdict(scaled)),
+        "## Who wins", "\n".join(verdict(runs, comparison["holdout"]) + scaled_verdict(detailed)),
         f"## Trackers ({len(runs)} runs, best OSPA first)",
         f"Same plots, track management and metrics for all. OSPA: cutoff {params.evaluate.ospa_cutoff_m:.0f} m, "
         f"order {params.evaluate.ospa_order:g}, mean over scans and its 90th percentile (see `pipeline/ospa.py`). ANEES only for trackers "
@@ -399,8 +435,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png"),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
-        "## The network-scaled Kalman filter against filters tuned by gradient descent and by Nelder-Mead",
-        SCALED_INTRO, *scaled_filter_tables(scaled),
+        f"## {SCALED_TITLE}", SCALED_INTRO, *scaled_filter_tables(detailed, scaled),
         f"## Tuning (on the {tuning['split']} split's target plots, cost {tuning['cost']})", tuning_table(tuning),
     ]) + "\n"
     picture = figures.comparison_picture(runs)

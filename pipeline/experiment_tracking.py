@@ -236,6 +236,24 @@ def lightning_logger(params: Params, stage: str, command: str, data: Path) -> ML
                               "mlflow.source.name": f"python -m pipeline {command}"})
 
 
+@contextmanager
+def filter_training_run(params: Params, stage: str, command: str, data: Path, section: str, values: object,
+                        describe: str) -> Iterator[MLFlowLogger]:
+    """The one MLflow run of a stage that trains with `filter_training` (`train_kalman_net`,
+    `train_lstm_update`): `lightning_logger`'s run, logged (`describe`, with the run's id and store)
+    and given the params of `section` (a params dataclass `values`, each key as `<section>.<key>`);
+    yields the logger. Ended as FAILED if the body raises (even KeyboardInterrupt), else as success."""
+    logger = lightning_logger(params, stage, command, data)
+    log.info("%s: %s, MLflow run %s in %s", stage, describe, logger.run_id, tracking_uri(params.training.tracking_uri))
+    try:
+        logger.log_hyperparams({f"{section}.{key}": value for key, value in asdict(values).items()})
+        yield logger
+    except BaseException:
+        logger.experiment.set_terminated(logger.run_id, "FAILED")
+        raise
+    logger.finalize("success")
+
+
 def dvc_experiment() -> str | None:
     """The name of the DVC experiment this stage runs in (`dvc exp run`, queued or not), or None."""
     return os.environ.get("DVC_EXP_NAME") or None

@@ -11,7 +11,6 @@ and `reports/kalman_net.json` (per-epoch losses, learned values, seconds).
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict
 from pathlib import Path
 
 import pyarrow as pa
@@ -62,13 +61,10 @@ def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path,
     plots_path = simulated_dir / k.split / "plots.parquet"
     batch = training_material(params, io.read_parquet(plots_path, simulate.PLOT_SCHEMA),
                               io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA))
-    logger = experiment_tracking.lightning_logger(params, "train_kalman_net", "train-kalman-net", plots_path)
     torch.set_num_threads(params.training.threads)
-    log.info("train_kalman_net: %d segments of up to %d plots (%d scored), MLflow run %s in %s", len(batch.times),
-             batch.times.shape[1], int(batch.scored.sum()), logger.run_id,
-             experiment_tracking.tracking_uri(params.training.tracking_uri))
-    try:
-        logger.log_hyperparams({f"kalman_net.{key}": value for key, value in asdict(k).items()})
+    described = f"{len(batch.times)} segments of up to {batch.times.shape[1]} plots ({int(batch.scored.sum())} scored)"
+    with experiment_tracking.filter_training_run(params, "train_kalman_net", "train-kalman-net", plots_path,
+                                                 "kalman_net", k, described) as logger:
         torch.manual_seed(k.seed)  # the initial weights: the same for a seed, whatever ran before in the process
         network = KalmanNet(network_config(params))
         common = dict(batch_segments=k.batch_segments, truncation_steps=k.truncation_steps, seed=k.seed,
@@ -93,10 +89,6 @@ def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path,
         for artifact in ("kalman_net.pt", "kalman_gradient.json"):
             logger.experiment.log_artifact(logger.run_id, str(models_dir / artifact))
         logger.experiment.log_artifact(logger.run_id, str(reports_dir / "kalman_net.json"))
-    except BaseException:
-        logger.experiment.set_terminated(logger.run_id, "FAILED")
-        raise
-    logger.finalize("success")
     log.info("train_kalman_net: network %.1f m after %d epochs (%.0f s); %s", report["kalman_net"]["epoch_losses_m"][-1],
              k.epochs, report["kalman_net"]["seconds"],
              ", ".join(f"gradient {kind} {v['epoch_losses_m'][-1]:.1f} m" for kind, v in report["gradient"].items()))

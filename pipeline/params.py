@@ -253,6 +253,7 @@ class TrackerParams:
     delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
     opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
     mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
+    lstm_update_gate_m: float  # the LSTM update's chi-square gate never beyond this of the prediction (issue 18)
 
 
 @dataclass(frozen=True)
@@ -418,7 +419,7 @@ class LSTMUpdate:
     epochs: int
     learning_rate: float
     seed: int
-    calibration_segments: int
+    validation_fraction: float
     calibration_ages: int
     calibration_gaps: int
     turn_share: float
@@ -941,6 +942,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         delete_after_s=_positive(tree, "delete_after_s", p),
         opportunity_s=radar.scan_period_s,
         mature_first=_boolean(tree, "mature_first", p),
+        lstm_update_gate_m=_positive(tree, "lstm_update_gate_m", p),
     )
     if tracker.confirm_m > tracker.confirm_n:
         raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")
@@ -1197,8 +1199,8 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
     if burn_in >= segment_plots:
         raise ParamError(f"{p}.burn_in_updates = {burn_in}: leaves nothing of a {segment_plots}-plot sequence to score")
     ages = _integer(tree, "calibration_ages", p, 1)
-    if ages > segment_plots:
-        raise ParamError(f"{p}.calibration_ages = {ages}: older than the training sequences it is fitted on "
+    if ages >= segment_plots:
+        raise ParamError(f"{p}.calibration_ages = {ages}: not younger than the validation windows it is fitted on "
                          f"(segment_plots = {segment_plots})")
     shares = _get(tree, "range_shares", p)
     if (not isinstance(shares, list) or not shares or not all(
@@ -1217,7 +1219,8 @@ def _lstm_update(tree: Mapping[str, Any], splits: tuple[Split, ...], windows: Wi
         restart_gap_s=_positive(tree, "restart_gap_s", p), burn_in_updates=burn_in, segment_plots=segment_plots,
         truncation_steps=truncation, batch_segments=_integer(tree, "batch_segments", p, 1),
         epochs=_integer(tree, "epochs", p, 1), learning_rate=_positive(tree, "learning_rate", p),
-        seed=_integer(tree, "seed", p), calibration_segments=_integer(tree, "calibration_segments", p, 1),
+        seed=_integer(tree, "seed", p),
+        validation_fraction=_number(tree, "validation_fraction", p, 0.0, 1.0, low_open=True, high_open=True),
         calibration_ages=ages, calibration_gaps=_integer(tree, "calibration_gaps", p, 1),
         turn_share=_number(tree, "turn_share", p, 0.0, 1.0, low_open=True, high_open=True),
         range_shares=tuple(float(v) for v in shares))

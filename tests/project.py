@@ -37,7 +37,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["kalman_net"].update(epochs=1, baseline_epochs=1, segment_plots=16, truncation_steps=8)  # seconds
     tree["association"].update(epochs=1, scenes_per_epoch=16, eval_scenes=4, eval_bias_m=[0.0, 200.0])  # seconds
     tree["fusion"].update(sweep_scenes=1, sweep_bias_m=[0.0, 200.0])  # the bias sweep in seconds
-    tree["lstm_update"].update(epochs=1, segment_plots=16, truncation_steps=8, mc_samples=4, calibration_segments=8,
+    tree["lstm_update"].update(epochs=1, segment_plots=16, truncation_steps=8, mc_samples=4, validation_fraction=0.2,
                                 calibration_ages=4)
     tree["evaluate"]["site_runs"] = tree["evaluate"]["scene_runs"] = []  # every run of the few below
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "ae", "window_m": 5000.0},

@@ -267,3 +267,29 @@ def test_two_stages_started_at_once_on_a_fresh_store_both_log_their_run(tmp_path
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{repository / 'mlflow.db'}")
     runs = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
     assert len(runs) == 2 and all(run.data.params["learning_rate"] == "0.001" for run in runs)
+
+
+def test_a_filter_training_run_is_failed_when_its_stage_raises_and_finished_otherwise(tmp_path: Path, make_params
+                                                                                     ) -> None:
+    """`filter_training_run`, as train_kalman_net and train_lstm_update open their run: the section's
+    params logged under its name; a stage body that raises leaves the run FAILED (and the error
+    goes on), one that returns leaves it FINISHED."""
+    from dataclasses import asdict
+
+    from pipeline.experiment_tracking import filter_training_run
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    params = make_params(1, {"training.tracking_uri": uri})
+    data = tmp_path / "plots.parquet"
+    data.write_bytes(b"plots")
+    with filter_training_run(params, "train_lstm_update", "train-lstm-update", data, "lstm_update",
+                             params.lstm_update, "a test") as logger:
+        finished = logger.run_id
+    with pytest.raises(RuntimeError, match="training diverged"):
+        with filter_training_run(params, "train_lstm_update", "train-lstm-update", data, "lstm_update",
+                                 params.lstm_update, "a test") as logger:
+            failed = logger.run_id
+            raise RuntimeError("training diverged")
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    assert client.get_run(finished).info.status == "FINISHED" and client.get_run(failed).info.status == "FAILED"
+    logged = client.get_run(finished).data.params
+    assert logged["lstm_update.hidden"] == str(asdict(params.lstm_update)["hidden"])

@@ -196,3 +196,59 @@ def test_gate_factor_lets_through_the_gate_probability_of_gaussian_innovations()
     innovation = torch.as_tensor(np.einsum("nij,nj->ni", np.linalg.cholesky((4 * C + R).numpy()),
                                            rng.normal(size=(20000, 3))))
     assert lstm_update._gate_factor(innovation, C, R, 0.99) == pytest.approx(4.0, rel=0.15)
+
+
+def test_estimate_factors_recover_the_spread_and_plot_shares_of_gaussian_errors():
+    """Errors drawn from N(0, 2 C + 0.5 R): the maximum-likelihood factors are about 2 and 0.5, and
+    their mean NEES is exactly 3, the dimension."""
+    rng = np.random.default_rng(7)
+    factor = rng.normal(size=(20000, 3, 3)) * 30.0
+    C = torch.as_tensor(factor @ factor.transpose(0, 2, 1))
+    R = torch.as_tensor(np.diag([2500.0, 40000.0, 90000.0])[None] * rng.uniform(0.5, 2.0, (20000, 1, 1)))
+    floor = torch.eye(3, dtype=torch.float64)
+    error = torch.as_tensor(np.einsum("nij,nj->ni", np.linalg.cholesky((2 * C + 0.5 * R + floor).numpy()),
+                                      rng.normal(size=(20000, 3))))
+    a, b = lstm_update._estimate_factors(error, C, R, floor)
+    assert a == pytest.approx(2.0, rel=0.1) and b == pytest.approx(0.5, rel=0.1)
+    assert float(lstm_update._distance(error, a * C + b * R + floor).mean()) == pytest.approx(3.0, rel=1e-4)
+
+
+def test_compare_puts_the_lstm_update_in_the_estimator_table_with_every_column():
+    """The compare stage's hold-out table: one row per estimator, best first, with turns, straight
+    flight, ANEES (marked when inside its bounds) and the share within each share of the range."""
+    from pipeline.compare_stage import estimator_table
+
+    def scored(mean: float, anees: float) -> dict:
+        return {"mean_error_m": mean, "rmse_m": mean * 1.3, "p95_error_m": mean * 2.7, "anees": anees,
+                "anees_bounds": [2.94, 3.06], "anees_inside": 2.94 <= anees <= 3.06, "turn_mean_error_m": mean * 1.1,
+                "straight_mean_error_m": mean * 0.9, "turn_windows": 7, "within_range_share": {"0.05": 1.0, "0.001": 0.6}}
+    table = estimator_table({"windows": 70, "filters": {"IMM (CV + CA), Nelder-Mead tuned": scored(156.3, 3.71),
+                                                        "LSTM update": scored(144.5, 3.01)}}).splitlines()
+    assert table[0] == ("| estimator | mean error (m) | RMSE (m) | 95th percentile (m) | turns (m) | straight (m) | "
+                        "ANEES (95 % bounds 2.94-3.06) | within 5.0% of range | within 0.1% of range |")
+    assert table[2] == "| LSTM update | 144.5 | 187.8 | 390.2 | 159.0 | 130.1 | 3.01 in | 100.0% | 60.0% |"
+    assert table[3].startswith("| IMM (CV + CA), Nelder-Mead tuned | 156.3 |") and "| 3.71 |" in table[3]
+
+
+def test_bounded_gate_rejects_a_plot_beyond_the_window_however_wide_the_covariance():
+    """The LSTM update's gate: with a covariance of 100 km per axis the chi-square gate alone takes a
+    plot 5 km off the prediction; bounded by a 4 km window it does not, and a plot 1 km off stays in."""
+    from pipeline.tracker.estimator import Prediction
+    from pipeline.tracker.gate import BoundedChiSquareGate, ChiSquareGate
+    from pipeline.tracker.management import ThesisWeights
+    from pipeline.tracker.tracks import LiveTracks
+    from tests import tracker_fixtures as tf
+
+    params = tf.make_params()
+    from pipeline import geodesy
+    site = geodesy.radar_site_ecef(params.radar)
+    offsets = np.array([[100e3, 0.0, 0.0], [100e3, 5000.0, 0.0], [100e3, 1000.0, 0.0]])
+    features = np.column_stack([np.arange(3) * 6.0, site + offsets, np.linalg.norm(offsets, axis=1)])
+    plots = tf.plots_of(features, np.arange(3), params.radar)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
+    slots = np.array([live.start(0)])
+    wide = Prediction(plots.position[:1], np.eye(3)[None] * 1e10, None)
+    assert np.isfinite(ChiSquareGate(0.999)(live, slots, 1, wide).errors[0])
+    bounded = BoundedChiSquareGate(0.999, 4000.0)
+    assert np.isinf(bounded(live, slots, 1, wide).errors[0])
+    assert np.isfinite(bounded(live, slots, 2, wide).errors[0])

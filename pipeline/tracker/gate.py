@@ -104,6 +104,22 @@ class ChiSquareGate:
         return Scores(within(distance, self.threshold), prediction)
 
 
+class BoundedChiSquareGate(ChiSquareGate):
+    """The chi-square gate, and the plot within `window_m` of the prediction: for an estimator whose
+    covariance can grow without bound on input unlike its training material (the LSTM update's
+    MC-dropout spread on a track fed clutter, issue 18: such a gate took plots ever further off, and
+    clutter tracks ran 170-310 km from any aircraft)."""
+
+    def __init__(self, probability: float, window_m: float) -> None:
+        super().__init__(probability)
+        self.window_m = window_m
+
+    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
+        scores = super().__call__(tracks, slots, row, prediction)
+        far = np.linalg.norm(tracks.plots.position[row] - prediction.positions, axis=1) >= self.window_m
+        return Scores(np.where(far, np.inf, scores.errors), scores.prediction)
+
+
 class AcceptAll:
     """No gating: every candidate track, error 0 (for an assigner that decides by other means)."""
 

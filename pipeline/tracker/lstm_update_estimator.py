@@ -5,11 +5,11 @@ of the LSTM's memory, `lstm_update.Ensemble`; copy 0 the point estimate) and the
 A track's ensemble starts at its first plot (at the plot, still, memory empty) when the track is first predicted, as the
 Kalman estimator's filter does. `predict` moves the candidate tracks' ensembles to the plot's time
 in one batch (K N rows): the position is the point estimate's prediction and its covariance the
-calibrated spread of the copies about it (`LSTMUpdate.covariance`, the prediction's factors for the
+calibrated spread of the copies about it (`LSTMUpdate.prediction_covariance`, the factors for the
 track's age and the scan periods predicted over), which the
 chi-square gate adds to the plot's covariance. `update` runs the LSTM step on the track's copies
 with the plot and its measurement covariance, and gives the point estimate and its calibrated
-covariance. Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
+covariance (`LSTMUpdate.estimate_covariance`: the copies' spread and the plot's covariance). Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
 from the estimator's own random state, seeded from the run's seed (the scenario's), so a scenario's
 tracks do not depend on what ran before it in the process (torch's global generator is left as it was).
 """
@@ -87,8 +87,8 @@ class LSTMUpdateEstimator:
         ensemble = Ensemble(*(part[index] for part in _parts(self.ensemble)))
         dt = torch.as_tensor(time - self.time[slots], dtype=self.dtype)
         with torch.no_grad():
-            position, covariance = self.model.covariance(self.model.predicted(ensemble.x, dt)[..., ::3], 1,
-                                                          ensemble.age, dt)
+            position, covariance = self.model.prediction_covariance(self.model.predicted(ensemble.x, dt)[..., ::3],
+                                                                     ensemble.age, dt)
         return Prediction(position.numpy(), covariance.numpy(), Moved(ensemble, dt))
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
@@ -106,6 +106,6 @@ class LSTMUpdateEstimator:
             after, _ = self.model.step(Ensemble(*(part[at] for part in _parts(moved.ensemble))), z, R, moved.dt[at],
                                        self.sample)
             self.random_state = torch.get_rng_state()
-            position, covariance = self.model.covariance(after.x[..., ::3], 0, after.age)
+            position, covariance = self.model.estimate_covariance(after.x[..., ::3], after.age, R)
         self._store(np.array([slot]), after, plots.time[row])
         return position[0].numpy(), covariance[0].numpy()

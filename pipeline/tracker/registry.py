@@ -126,11 +126,16 @@ def _classical(name: str, kind: str, global_nearest: bool):
 
 
 def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-    """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance."""
-    from pipeline.tracker.gate import ChiSquareGate
+    """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance,
+    young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
+    (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
+    covariance rather than the `window_m` ball, which let clutter through to confirmed tracks (issue 18);
+    and never beyond `tracker.lstm_update_gate_m` of the prediction (`BoundedChiSquareGate`)."""
+    from pipeline.tracker.gate import BoundedChiSquareGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed),
-                        ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params)
+    gate = BoundedChiSquareGate(params.kalman_gate_probability, params.lstm_update_gate_m)
+    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed), gate,
+                        params.young_track_plots, window_m, params, young_gate=gate)
 
 
 def _kalman_net(name: str, global_nearest: bool):
