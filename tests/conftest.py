@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import fcntl
+import os
+import sys
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
@@ -14,6 +16,22 @@ from tests.servers import repro_tiny_pipeline
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
 _DEFAULT_TREE = load_params_tree(PARAMS_YAML)
+
+
+@pytest.fixture(autouse=True)
+def tracking_uri_left_as_found() -> Iterator[None]:
+    """MLflow's tracking URI put back after every test. A stage run in the test's process opens its
+    run with `mlflow.set_tracking_uri`, and MLflow then also sets MLFLOW_TRACKING_URI in
+    `os.environ` (for child processes); left there, the `dvc repro` that a later test of the same
+    worker starts would send its runs to that test's store, not to the store its params name."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    yield
+    if "mlflow" in sys.modules:
+        sys.modules["mlflow"].set_tracking_uri(None)
+    if before is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = before
 
 
 @pytest.fixture
