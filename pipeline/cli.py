@@ -15,7 +15,7 @@ from pipeline.params import ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
 from pipeline.track_association import METHODS as ASSOCIATION_METHODS
-from pipeline.tracker.registry import CLASSICAL, METHODS, TRACKERS, UnknownMethod
+from pipeline.tracker.registry import CLASSICAL, MANAGEMENT, METHODS, TRACKERS, UnknownMethod
 from pipeline.tuning import TuningError
 
 log = logging.getLogger("pipeline")
@@ -109,7 +109,7 @@ def _track(args: argparse.Namespace) -> None:
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
               args.date, args.method, args.window, Path(args.models),
-              Path(args.out))
+              Path(args.out), args.management)
 
 
 def _associate(args: argparse.Namespace) -> None:
@@ -206,7 +206,7 @@ COMMANDS = {
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "
               "--radar data/simulated/test/radar.parquet --method via --window 4000 --out tracks.parquet\n"
-              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --out tracks.parquet",
+              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --management m_of_n --out tracks.parquet",
               ["params", "recording", "models"]),
     "associate": (_associate, "Associate two users' track tables (what `track` writes, classical methods: they give "
                   "covariances) at common times and fuse the pairs by covariance intersection; writes the pairs "
@@ -265,6 +265,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                                   + ") need only models/kalman_tuned.json, the others the trained networks")
         command.add_argument("--window", type=_window_m, default=4000.0,
                              help="association window in metres (default: %(default)s)")
+        command.add_argument("--management", choices=MANAGEMENT,
+                             help="track management rule (default: params' tracker.management): thesis deletes a "
+                                  "track not yet confirmed at its first silence (two missed scans), m_of_n confirms "
+                                  "at M hits of N scans and deletes a confirmed track after tracker.delete_after_s")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),

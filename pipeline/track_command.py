@@ -153,9 +153,11 @@ class RunSummary:
 
 
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
-              first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path) -> None:
+              first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path,
+              management: str | None = None) -> None:
     """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
-    summary beside it (`summary_path`). The recording is placed, tracked and written
+    summary beside it (`summary_path`), under the track management rule `management` (one of
+    `registry.MANAGEMENT`; None: params' `tracker.management`). The recording is placed, tracked and written
     `compute.chunk_plots` plots at a time: a Parquet recording in time order is read from its file
     as it goes (`streamed_recording`), one out of order held and sorted first; an ASTERIX recording
     is decoded whole first. Nothing is written on an error, nor when `out` or its summary would
@@ -163,6 +165,8 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
               "--asterix": asterix_paths}
     io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
+    if management is not None:
+        params = dataclasses.replace(params, tracker=dataclasses.replace(params.tracker, management=management))
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
