@@ -13,7 +13,6 @@ The "seed setting" row draws each scene's bias length uniformly in `train_bias_m
 
 from __future__ import annotations
 
-import io as bytes_io
 from collections.abc import Callable
 
 import matplotlib
@@ -27,6 +26,7 @@ from pipeline.association_net import (AssociationNet, AssociationNetConfig, Scen
                                       associate_network, scene_inputs)
 from pipeline.association_scenes import Scene, SceneSetting, make_scene  # noqa: E402
 from pipeline.bias_robust_association import associate_bias_robust  # noqa: E402
+from pipeline.figure_png import png  # noqa: E402
 from pipeline.params import Association  # noqa: E402
 from pipeline.track_association import associate_double_threshold, associate_statistical  # noqa: E402
 
@@ -130,7 +130,4 @@ def bias_figure(report: dict) -> bytes:
     axes[1].set(xlabel="radar 2 bias (m)", ylabel="false pairs / true pairs", title="False pairs")
     axes[0].legend(fontsize=8)
     figure.tight_layout()
-    buffer = bytes_io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110, metadata={"Software": None})
-    plt.close(figure)
-    return buffer.getvalue()
+    return png(figure)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import io as bytes_io
-
 import matplotlib
 
 matplotlib.use("Agg")
@@ -13,6 +11,7 @@ import pyarrow as pa  # noqa: E402
 import pymap3d  # noqa: E402
 
 from pipeline import geodesy  # noqa: E402
+from pipeline.figure_png import png  # noqa: E402
 from pipeline.data_summary import target_plot_errors_m, target_plot_intervals_s  # noqa: E402
 from pipeline.params import STRATEGIES, Params  # noqa: E402
 from pipeline.tracker.management import TrackManagement  # noqa: E402
@@ -20,13 +19,6 @@ from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE, family_of_ru
 from pipeline.tracker.updates import confirmed_associations, positions  # noqa: E402
 
 FAMILY_COLOURS = {NEURAL: "tab:blue", CLASSICAL: "tab:orange", REFERENCE: "tab:grey"}
-
-
-def _png(figure: plt.Figure) -> bytes:
-    buffer = bytes_io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110, metadata={"Software": None})
-    plt.close(figure)
-    return buffer.getvalue()
 
 
 def _local_km(table: pa.Table, params: Params, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +59,7 @@ def route_examples(routes: pa.Table, plots: pa.Table, params: Params, per_strate
         axis.set_aspect("equal")
         axis.legend(fontsize=7, loc="lower left")
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def radar_statistics(plots: pa.Table, truth: pa.Table) -> bytes:
@@ -107,7 +99,7 @@ def radar_statistics(plots: pa.Table, truth: pa.Table) -> bytes:
     axes[2].set_ylim(0.0, 1.02)
     axes[2].legend(fontsize=8)
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bins: int) -> bytes:
@@ -123,7 +115,7 @@ def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bi
         axis.set_title(name)
         axis.legend(fontsize=8, loc="upper left")
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str) -> bytes:
@@ -139,7 +131,7 @@ def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str)
     axis.set_title(f"{kind} network")
     axis.legend()
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str,
@@ -180,7 +172,7 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
                    "confirmed tracks", fontsize=10)
     axis.legend(fontsize=8, loc="best")
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def comparison_picture(runs: dict[str, dict]) -> bytes:
@@ -196,7 +188,7 @@ def comparison_picture(runs: dict[str, dict]) -> bytes:
         axis.grid(axis="x", alpha=0.3)
     axes[0].set_title("blue: neural, orange: classical, grey: references", loc="left", fontsize=9)
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
@@ -215,7 +207,7 @@ def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
     axis.grid(alpha=0.3)
     axis.legend(fontsize=7, ncol=2, loc="lower right")
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)
 
 
 def noise_scale_picture(result: dict) -> bytes:
@@ -230,7 +222,7 @@ def noise_scale_picture(result: dict) -> bytes:
     axes.set_title("Hold-out windows, noise level unknown to the filters")
     axes.grid(True, which="both", alpha=0.3)
     axes.legend(fontsize=7)
-    return _png(figure)
+    return png(figure)
 
 
 def scene_picture(scene: object, updates: dict[str, np.ndarray], scored: object, management: TrackManagement,
@@ -283,4 +275,4 @@ def scene_picture(scene: object, updates: dict[str, np.ndarray], scored: object,
     axes[1].set_ylim(centre[1][0] - 25.0, centre[1][0] + 25.0)
     axes[1].set_title("around the crossing pair's closest approach", fontsize=10)
     figure.tight_layout()
-    return _png(figure)
+    return png(figure)

@@ -17,7 +17,6 @@ bias does not change): accuracy = correct / true pairs, false and missed pairs p
 from __future__ import annotations
 
 import dataclasses
-import io as bytes_io
 from pathlib import Path
 
 import matplotlib
@@ -29,6 +28,7 @@ import numpy as np  # noqa: E402
 from pipeline import association_net, radar_fusion, scenes, table_association  # noqa: E402
 from pipeline.association_report import count_pairs  # noqa: E402
 from pipeline.common_time_states import Snapshot, common_frame, common_snapshots  # noqa: E402
+from pipeline.figure_png import png  # noqa: E402
 from pipeline.params import Params  # noqa: E402
 
 COUNTS = ("true", "correct", "false", "missed")
@@ -108,7 +108,4 @@ def sweep_figure(report: dict) -> bytes:
                  label="issue 19's goal (95 % at 200 m)")
     axes[0].legend(fontsize=8)
     figure.tight_layout()
-    buffer = bytes_io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110, metadata={"Software": None})
-    plt.close(figure)
-    return buffer.getvalue()
+    return png(figure)
