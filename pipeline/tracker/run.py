@@ -175,18 +175,21 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
         slots, pair_rows = near[0], rows.start
     else:
         slots, pair_rows = np.concatenate(near), np.repeat(np.arange(rows.start, rows.stop), counts)
-    mature = live.plot_count[slots] >= tracker.mature_from
-    errors = np.full(len(slots), np.inf)
-    prediction, scored = None, mature.any()
-    if scored:
-        errors[mature], prediction = _scores(tracker.gate, live, slots[mature], _of_pairs(pair_rows, mature),
-                                             tracker.estimator)
-    young = ~mature
-    if tracker.mature_first and scored:
-        young &= ~_of_accepting_plots(np.isfinite(errors) & mature, counts)  # their young tracks stay at inf
-    if young.any():
-        errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
-                                   tracker.estimator)
+    mature = live.plot_count.take(slots) >= tracker.mature_from
+    scored = np.count_nonzero(mature)
+    if scored == len(slots):  # no young candidate (most plots of an aircraft among many): no masks
+        errors, prediction = _scores(tracker.gate, live, slots, pair_rows, tracker.estimator)
+    else:
+        errors, prediction = np.full(len(slots), np.inf), None
+        young = ~mature
+        if scored:
+            errors[mature], prediction = _scores(tracker.gate, live, slots[mature], _of_pairs(pair_rows, mature),
+                                                 tracker.estimator)
+            if tracker.mature_first:  # their young tracks stay at inf
+                young &= ~_of_accepting_plots(np.isfinite(errors) & mature, counts)
+        if young.any():
+            errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
+                                       tracker.estimator)
     candidates, begin, first = [], 0, 0
     for own_slots in near:
         end = begin + len(own_slots)
@@ -202,7 +205,7 @@ def _of_accepting_plots(accepted: np.ndarray, counts: list[int]) -> np.ndarray:
     """Whether each (track, plot) pair (K,) belongs to a plot with some `accepted` pair (K,), the
     pairs given plot by plot, `counts` of each."""
     if len(counts) == 1:
-        return np.full(len(accepted), accepted.any())
+        return np.full(len(accepted), np.count_nonzero(accepted) > 0)
     plot = np.repeat(np.arange(len(counts)), counts)
     hit = np.zeros(len(counts), dtype=bool)
     hit[plot[accepted]] = True
