@@ -103,7 +103,8 @@ class ChiSquareGate:
         innovation = tracks.plots.position[row] - prediction.positions
         inverse, _ = inverse3(prediction.covariances + tracks.plots.covariance[row])
         distance = np.einsum("ni,nij,nj->n", innovation, inverse, innovation)
-        return Scores(within(distance, self.threshold), Prediction(*prediction[:3], inverse))
+        return Scores(within(distance, self.threshold), Prediction(prediction.positions, prediction.covariances,
+                                                                   prediction.state, inverse))
 
 
 class BoundedChiSquareGate(ChiSquareGate):

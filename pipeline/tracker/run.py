@@ -185,9 +185,9 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
         if scored:
             errors[mature], prediction = _scores(tracker.gate, live, slots[mature], _of_pairs(pair_rows, mature),
                                                  tracker.estimator)
-            if tracker.mature_first:  # their young tracks stay at inf
-                young &= ~_of_accepting_plots(np.isfinite(errors) & mature, counts)
-        if young.any():
+            if tracker.mature_first:  # their young tracks stay at inf (only mature pairs are scored yet)
+                young = _of_unaccepting_plots(young, np.isfinite(errors), counts)
+        if young is not None and young.any():
             errors[young], _ = _scores(tracker.young_gate, live, slots[young], _of_pairs(pair_rows, young),
                                        tracker.estimator)
     candidates, begin, first = [], 0, 0
@@ -201,15 +201,15 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     return candidates
 
 
-def _of_accepting_plots(accepted: np.ndarray, counts: list[int]) -> np.ndarray:
-    """Whether each (track, plot) pair (K,) belongs to a plot with some `accepted` pair (K,), the
-    pairs given plot by plot, `counts` of each."""
+def _of_unaccepting_plots(pairs: np.ndarray, accepted: np.ndarray, counts: list[int]) -> np.ndarray | None:
+    """Which of `pairs` (K,), (track, plot) pairs given plot by plot (`counts` of each), belong to a
+    plot with no `accepted` pair (K,); None for none of one plot's."""
     if len(counts) == 1:
-        return np.full(len(accepted), np.count_nonzero(accepted) > 0)
+        return None if np.count_nonzero(accepted) else pairs
     plot = np.repeat(np.arange(len(counts)), counts)
     hit = np.zeros(len(counts), dtype=bool)
     hit[plot[accepted]] = True
-    return hit[plot]
+    return pairs & ~hit[plot]
 
 
 def _of_pairs(rows: int | np.ndarray, selected: np.ndarray) -> int | np.ndarray:
