@@ -65,15 +65,13 @@ class KalmanEstimator:
         self.x[slots], self.P[slots], self.mu[slots], self.time[slots] = state.x, state.P, state.mu, time
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
-        """Start the filters of the tracks at `slots` not started yet, at their first plots."""
-        started = self.started.take(slots)
-        if np.count_nonzero(started) < len(slots):
-            fresh = np.unique(slots[~started])  # a scan's (track, plot) pairs hold a track once per plot
-            rows = [tracks.tracks[slot].rows[0] for slot in fresh]
-            plots = tracks.plots
-            first = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
-            self._store(fresh, batch_filters.mixed(self.settings, first), plots.time[rows])
-            self.started[fresh] = True
+        """Start the filters of the tracks at `slots`, not started yet, at their first plots."""
+        fresh = np.unique(slots)  # a scan's (track, plot) pairs hold a track once per plot
+        rows = [tracks.tracks[slot].rows[0] for slot in fresh]
+        plots = tracks.plots
+        first = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
+        self._store(fresh, batch_filters.mixed(self.settings, first), plots.time[rows])
+        self.started[fresh] = True
 
     def _motion(self, steps: list[float]) -> np.ndarray:
         """Each model's transition F and process noise Q over each of `steps` (K,) seconds:
@@ -100,7 +98,9 @@ class KalmanEstimator:
         """The tracks' filters moved to `time` (one, or one per track: `pairwise`), unchanged:
         positions (K, 3), covariances (K, 3, 3), and the moved models as the state (a BatchState of
         K tracks)."""
-        self._start_filters(tracks, slots)
+        started = self.started.take(slots)
+        if np.count_nonzero(started) < len(slots):
+            self._start_filters(tracks, slots[~started])
         motion = self._motion((time - self.time.take(slots)).tolist())
         state = batch_filters.moved(BatchState(self.x.take(slots, axis=0), self.P.take(slots, axis=0),
                                                self.mu.take(slots, axis=0)), motion[:, 0], motion[:, 1])

@@ -144,8 +144,8 @@ class LiveTracks:
             slots = [slot for step in _neighbours(int(reach)) for slot in cells.get(centre + step, ())]
         if not slots:
             return np.empty(0, dtype=np.int64)
-        slots = np.sort(np.array(slots, dtype=np.int64))
-        offset = self.position[slots] - self.plots.position[row]
+        slots = np.array(sorted(slots), dtype=np.int64)
+        offset = self.position.take(slots, axis=0) - self.plots.position[row]
         return slots[np.einsum("ij,ij->i", offset, offset) < distance_m ** 2]
 
     def carry(self, plots: Plots) -> int:
