@@ -177,15 +177,18 @@ def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, 
     own estimate: x as is, and P + 0.0, what the general form gives it (its spread is 0)."""
     if mu.shape[-1] == 1:
         return x[..., 0, :], P[..., 0, :, :] + 0.0
-    mean = (mu[..., None] * x).sum(axis=-2)
+    mean = np.add.reduce(mu[..., None] * x, axis=-2)
     offset = x - mean[..., None, :]
-    return mean, (mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :])).sum(axis=-3)
+    return mean, np.add.reduce(mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :]), axis=-3)
 
 
 def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
-    """The tracks' positions (B, 3) and position covariances (B, 3, 3), their models combined."""
-    position = slice(None, None, state.x.shape[-1] // 3)
-    return combined(state.mu, state.x[..., position], state.P[..., position, position])
+    """The tracks' positions (B, 3) and position covariances (B, 3, 3), their models combined (a
+    single model's as `combined` gives them, picked directly: the tracker asks twice per plot)."""
+    step = state.x.shape[-1] // 3
+    if state.mu.shape[-1] == 1:
+        return state.x[..., 0, ::step], state.P[..., 0, ::step, ::step] + 0.0
+    return combined(state.mu, state.x[..., ::step], state.P[..., ::step, ::step])
 
 
 def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, tracks: np.ndarray | slice) -> None:

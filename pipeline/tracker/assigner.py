@@ -93,12 +93,13 @@ class GlobalNearestPerScan:
 
     def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
         choices: list[int | None] = [None] * len(candidates)
-        slots = np.unique(np.concatenate([c.slots for c in candidates]))
+        paired = np.concatenate([c.slots for c in candidates])  # every (plot, track) pair's track, plot by plot
+        slots = np.unique(paired)
         if not len(slots):
             return choices
         cost = np.full((len(candidates), len(slots)), np.inf)
-        for plot, c in enumerate(candidates):
-            cost[plot, np.searchsorted(slots, c.slots)] = c.errors
+        plots = np.repeat(np.arange(len(candidates)), [len(c.slots) for c in candidates])
+        cost[plots, np.searchsorted(slots, paired)] = np.concatenate([c.errors for c in candidates])
         finite = np.isfinite(cost)
         for plot, column in zip(*linear_sum_assignment(np.where(finite, cost, UNASSIGNABLE))):
             if finite[plot, column]:

@@ -76,8 +76,9 @@ class KalmanEstimator:
     def _motion(self, steps: list[float]) -> np.ndarray:
         """Each model's transition F and process noise Q over each of `steps` (K,) seconds:
         (K, 2, M, n, n), F then Q. Gathered in one call from a table of the steps seen so far (plot
-        times are quantised, so steps repeat), which starts afresh rather than hold more than MOTION_CACHE steps;
-        a step not in it is tabulated alone, so its F and Q do not depend on the others'."""
+        times are quantised, so steps repeat), which starts afresh rather than hold more than
+        MOTION_CACHE steps; the steps not in it are tabulated together in one call (F and Q are
+        elementwise in dt, so each step's are the same as tabulated alone)."""
         codes = self._motion_code
         try:
             return self._motions.take([codes[dt] for dt in steps], axis=0)
@@ -85,13 +86,14 @@ class KalmanEstimator:
             pass
         if len(codes) + len(steps) > MOTION_CACHE:
             codes.clear()
-        for dt in steps:
-            if dt not in codes:
-                if len(codes) == len(self._motions):
-                    extra = np.empty((max(len(codes), 16), *self._motions.shape[1:]))
-                    self._motions = np.concatenate([self._motions, extra])
-                self._motions[len(codes)] = batch_filters.motion(self.settings, np.array([dt]))[0]
-                codes[dt] = len(codes)
+        missing = list(dict.fromkeys(dt for dt in steps if dt not in codes))
+        known = len(codes)
+        if known + len(missing) > len(self._motions):
+            extra = np.empty((max(known + len(missing), 2 * len(self._motions), 16) - len(self._motions),
+                              *self._motions.shape[1:]))
+            self._motions = np.concatenate([self._motions, extra])
+        self._motions[known:known + len(missing)] = batch_filters.motion(self.settings, np.array(missing))
+        codes.update((dt, known + k) for k, dt in enumerate(missing))
         return self._motions.take([codes[dt] for dt in steps], axis=0)
 
     def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
