@@ -14,7 +14,11 @@ When the estimator and both gates are `pairwise` (they take an array of plot row
 one per candidate track), a batch of several plots is scored in one call per gate: one
 prediction for every (plot, candidate track) pair of an antenna scan instead of one per plot.
 The numbers are the same, pair by pair; what it saves is the NumPy calls per plot, which at a
-thousand aircraft in the air cost more than the arithmetic (issue 16, item 4).
+thousand aircraft in the air cost more than the arithmetic (issue 16, item 4). Nearest neighbour
+takes each plot after the previous plot's update, so its batches are single plots; with pairwise
+roles the loop still scores a few of them at once, ahead (`_track_ahead`), and scores a plot
+again, alone, when a track that changed in between (`LiveTracks.changed`) was or now is among its
+candidates: the same updates to the bit, with one prediction and gate call for most plots.
 
 The loop knows no method: no name, no type test. It works in ECEF; each plot brings its
 radar's measurement covariance in the plot table, so plots of several radars mix. A long
