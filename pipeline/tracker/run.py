@@ -122,8 +122,7 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
     else:
         candidates = [c for row in rows for c in _candidates(live, range(row, row + 1), tracker)]
     choices = tracker.assigner.assign(live, rows, candidates)
-    chosen = [None if choice is None else (int(c.slots[choice]), live.tracks[c.slots[choice]].track_id, choice)
-              for c, choice in zip(candidates, choices)]
+    chosen = [None if choice is None else _chosen(live, c, choice) for c, choice in zip(candidates, choices)]
     ahead = _updated_ahead(live, rows, candidates, chosen, estimator) if len(rows) > 1 and tracker.pairwise else {}
     for row, c, choice in zip(rows, candidates, chosen):
         live.manage(plots.time[row])
@@ -160,8 +159,14 @@ def _track_ahead(live: LiveTracks, rows: range, tracker: Composition, updates: U
         if live.changed and not _unchanged_near(live, row, c.slots, tracker.prefilter_m):
             c = _candidates(live, range(row, row + 1), tracker)[0]
         choice = tracker.assigner.assign(live, range(row, row + 1), [c])[0]
-        _take(live, row, c, None if choice is None else
-              (int(c.slots[choice]), live.tracks[c.slots[choice]].track_id, choice), tracker, updates, {})
+        _take(live, row, c, None if choice is None else _chosen(live, c, choice), tracker, updates, {})
+
+
+def _chosen(live: LiveTracks, c: Candidates, choice: int) -> tuple[int, int, int]:
+    """The chosen candidate as (slot, track id, its place in `c`): the track id tells whether the
+    slot still holds the track at the plot's turn."""
+    slot = int(c.slots[choice])
+    return slot, live.tracks[slot].track_id, choice
 
 
 def _unchanged_near(live: LiveTracks, row: int, slots: np.ndarray, distance_m: float) -> bool:
@@ -193,8 +198,11 @@ def _take(live: LiveTracks, row: int, c: Candidates, choice: tuple[int, int, int
         return
     slot, track_id, at = choice
     mature = bool(c.mature[at])
-    prediction, index = (c.prediction, c.first + np.count_nonzero(c.mature[:at])) if mature else (None, 0)
-    position, covariance = ahead[row] if row in ahead else estimator.update(live, slot, row, prediction, index)
+    if row in ahead:
+        position, covariance = ahead[row]
+    else:
+        prediction, index = (c.prediction, c.first + np.count_nonzero(c.mature[:at])) if mature else (None, 0)
+        position, covariance = estimator.update(live, slot, row, prediction, index)
     live.associate(slot, row, position)
     updates.add(track_id, row, position, live.weight[slot], tracker.label if mature else tracker.young_label,
                 float(c.errors[at]), covariance)
