@@ -115,7 +115,7 @@ def mixed(settings: FilterSettings, state: BatchState, each_alone: bool = False)
 def moved(state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
     """Each track's models moved by their transition F and process noise Q (B, M, n, n):
     x' = F x, P' = F P F' + Q (filterpy's `KalmanFilter.predict`); mu is kept."""
-    return BatchState((F @ state.x[..., None])[..., 0], F @ state.P @ np.swapaxes(F, -1, -2) + Q, state.mu)
+    return BatchState((F @ state.x[..., None])[..., 0], F @ state.P @ F.swapaxes(-1, -2) + Q, state.mu)
 
 
 def predicted(settings: FilterSettings, state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
@@ -127,16 +127,22 @@ def inverse3(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse (..., 3, 3) and determinant (...) of 3 x 3 matrices S (..., 3, 3) by cofactors:
     one gather and a few products instead of a LAPACK call per matrix, which costs more than the
     arithmetic at this size. Singular matrices give inf or NaN entries, no error."""
-    flat = S.reshape(*S.shape[:-2], 9)
+    flat = S.reshape(S.shape[:-2] + (9,))
     factors = flat[..., _COFACTOR_INDEX]                                            # (..., 4, 9)
     cofactor = factors[..., 0, :] * factors[..., 1, :] - factors[..., 2, :] * factors[..., 3, :]
-    determinant = (flat[..., :3] * cofactor[..., :3]).sum(axis=-1)
-    return np.swapaxes(cofactor.reshape(S.shape), -1, -2) / determinant[..., None, None], determinant
+    determinant = np.add.reduce(flat[..., :3] * cofactor[..., :3], axis=-1)
+    return cofactor.reshape(S.shape).swapaxes(-1, -2) / determinant[..., None, None], determinant
 
 
-def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray) -> BatchState:
+def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.ndarray,
+            S_inverse: np.ndarray | None = None) -> BatchState:
     """Each track updated with its measurement z (B, 3) of covariance R (B, 3, 3): Joseph form, and
     for the IMM the mode probabilities from the models' log-likelihoods.
+
+    `S_inverse` (B, M, 3, 3): the inverse of the innovation covariance S = H P H' + R when the
+    caller has it already (the tracker's chi-square gate computed it for a single filter), else
+    computed here; the IMM's mode probabilities need S's determinant too, so it is not taken there
+    (ValueError).
 
     H only picks x, y, z out of the state, so H P is rows of P, and the Joseph form
     (I - K H) P (I - K H)' + K R K' is evaluated as J P + (K R - J P H') K' with J P = P - K (H P)."""
@@ -144,9 +150,12 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
     R = R[:, None]                                                                  # (B, 1, 3, 3)
     HP = state.P[..., position, :]                                                  # (B, M, 3, n)
     innovation = z[:, None] - state.x[..., position]                                # (B, M, 3)
-    S_inverse, S_determinant = inverse3(HP[..., position] + R)                     # (B, M, 3, 3), (B, M)
+    if S_inverse is None:
+        S_inverse, S_determinant = inverse3(HP[..., position] + R)                 # (B, M, 3, 3), (B, M)
+    elif settings.kind == "imm":
+        raise ValueError("updated: the IMM needs the innovation covariance's determinant; give no S_inverse")
     gain_T = S_inverse @ HP                                                         # K' = S^-1 H P: (B, M, 3, n)
-    gain = np.swapaxes(gain_T, -1, -2)
+    gain = gain_T.swapaxes(-1, -2)
     x = state.x + (innovation[..., None, :] @ gain_T)[..., 0, :]
     JP = state.P - gain @ HP
     P = JP + (gain @ R - JP[..., :, position]) @ gain_T
@@ -168,15 +177,18 @@ def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, 
     own estimate: x as is, and P + 0.0, what the general form gives it (its spread is 0)."""
     if mu.shape[-1] == 1:
         return x[..., 0, :], P[..., 0, :, :] + 0.0
-    mean = (mu[..., None] * x).sum(axis=-2)
+    mean = np.add.reduce(mu[..., None] * x, axis=-2)
     offset = x - mean[..., None, :]
-    return mean, (mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :])).sum(axis=-3)
+    return mean, np.add.reduce(mu[..., None, None] * (P + offset[..., :, None] * offset[..., None, :]), axis=-3)
 
 
 def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
-    """The tracks' positions (B, 3) and position covariances (B, 3, 3), their models combined."""
-    position = slice(None, None, state.x.shape[-1] // 3)
-    return combined(state.mu, state.x[..., position], state.P[..., position, position])
+    """The tracks' positions (B, 3) and position covariances (B, 3, 3), their models combined (a
+    single model's as `combined` gives them, picked directly: the tracker asks twice per plot)."""
+    step = state.x.shape[-1] // 3
+    if state.mu.shape[-1] == 1:
+        return state.x[..., 0, ::step], state.P[..., 0, ::step, ::step] + 0.0
+    return combined(state.mu, state.x[..., ::step], state.P[..., ::step, ::step])
 
 
 def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, tracks: np.ndarray | slice) -> None:

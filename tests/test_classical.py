@@ -441,6 +441,29 @@ def test_inverse3_is_the_inverse_and_determinant():
     np.testing.assert_allclose(determinant, np.linalg.det(S), rtol=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["cv", "imm"])
+def test_update_takes_a_given_innovation_inverse_but_the_imm_refuses_one(kind):
+    """`batch_filters.updated` with S^-1 given (as the tracker's chi-square gate hands it on) gives
+    the update that inverts S itself, to the bit; the IMM, whose mode probabilities need S's
+    determinant too, refuses one."""
+    filters = settings(kind, (5.0, 0.5) if kind == "imm" else (5.0,))
+    rng = np.random.default_rng(6)
+    z = rng.normal(0.0, 100.0, (4, 3))
+    R = np.tile(np.diag([2500.0, 2500.0, 900.0]), (4, 1, 1))
+    F_and_Q = batch_filters.motion(filters, np.full(4, 6.0))
+    prior = batch_filters.predicted(filters, batch_filters.start(filters, z, R), F_and_Q[:, 0], F_and_Q[:, 1])
+    position = slice(None, None, prior.x.shape[-1] // 3)
+    S_inverse, _ = batch_filters.inverse3(prior.P[..., position, position] + R[:, None])
+    own = batch_filters.updated(filters, prior, z + 50.0, R)
+    if kind == "imm":
+        with pytest.raises(ValueError, match="determinant"):
+            batch_filters.updated(filters, prior, z + 50.0, R, S_inverse)
+        return
+    given = batch_filters.updated(filters, prior, z + 50.0, R, S_inverse)
+    np.testing.assert_array_equal(given.x, own.x)
+    np.testing.assert_array_equal(given.P, own.P)
+
+
 # ----------------------------------------------------------------------------- OSPA
 
 def test_ospa_of_hand_computed_cases():

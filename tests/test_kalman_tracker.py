@@ -96,17 +96,23 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
     assert gated_out >= len(flight) - 3  # the 5 km plots, bar the first few while the velocity is unknown
 
 
+def one_track(params, settings, flight: np.ndarray) -> tuple[LiveTracks, KalmanEstimator, int]:
+    """The plots of `flight` tracked by `settings`' filter: one track started at the first, its slot."""
+    live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
+                      ThesisWeights.from_params(params.tracker))
+    estimator = KalmanEstimator(settings)
+    slot = live.start(0)
+    estimator.start(live, slot)
+    return live, estimator, slot
+
+
 def test_update_without_a_prediction_predicts_itself(params):
     """A young track's update (the radius gate made no prediction) gives what predicting first gives."""
     settings = tf.untuned_filters(params)["imm"]
     flight = noisy_turning_flight(params, np.random.default_rng(3))[:2]
     results = []
     for given in (False, True):
-        live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
-                          ThesisWeights.from_params(params.tracker))
-        estimator = KalmanEstimator(settings)
-        slot = live.start(0)
-        estimator.start(live, slot)
+        live, estimator, slot = one_track(params, settings, flight)
         prediction = estimator.predict(live, np.array([slot]), flight[1, 0]) if given else None
         results.append(estimator.update(live, slot, 1, prediction, 0))
     np.testing.assert_array_equal(results[0][0], results[1][0])
@@ -151,13 +157,7 @@ def test_a_scan_scored_and_updated_at_once_gives_the_updates_of_plot_by_plot(par
     (track, plot) pairs of a whole scan in one call each (the estimator and gates are `pairwise`);
     the update table is the one the same tracker gives scoring and updating one plot at a time,
     to the last bit."""
-    rng = np.random.default_rng(16)
-    flights = [(tf.straight_features(params.radar, (40e3 + 3e3 * n, -20e3, 9000.0),
-                                     (60.0 * (n % 3 - 1), 200.0, 0.0), 12, t_offset=0.7 * n), 100 * n + np.arange(12))
-               for n in range(8)]
-    clutter = tf.clutter_features(params.radar, 12, 30.0, rng, half_width_m=60e3)
-    features, ids = tf.merge(*flights, (clutter, 10_000 + np.arange(len(clutter))))
-    plots = tf.plots_of(features, ids, params.radar)
+    plots = crossing_flights_among_clutter(params)
     tables = []
     for pairwise in (True, False):
         tracker = registry.compose(method, Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
@@ -166,3 +166,78 @@ def test_a_scan_scored_and_updated_at_once_gives_the_updates_of_plot_by_plot(par
     assert (tables[0]["association"] == method).sum() > 50
     for column in tables[0]:
         np.testing.assert_array_equal(tables[0][column], tables[1][column], err_msg=column)
+
+
+def crossing_flights_among_clutter(params):
+    """Plots of eight flights crossing each other's paths, 3 km apart, among clutter (12 scans)."""
+    rng = np.random.default_rng(16)
+    flights = [(tf.straight_features(params.radar, (40e3 + 3e3 * n, -20e3, 9000.0),
+                                     (60.0 * (n % 3 - 1), 200.0, 0.0), 12, t_offset=0.7 * n), 100 * n + np.arange(12))
+               for n in range(8)]
+    clutter = tf.clutter_features(params.radar, 12, 30.0, rng, half_width_m=60e3)
+    features, ids = tf.merge(*flights, (clutter, 10_000 + np.arange(len(clutter))))
+    return tf.plots_of(features, ids, params.radar)
+
+
+@pytest.mark.parametrize("method", ["kalman_cv", "imm"])
+def test_nearest_neighbour_scored_ahead_gives_the_updates_of_plot_by_plot(params, method, monkeypatch):
+    """Nearest neighbour's plots are scored a few at a time ahead (`run._track_ahead`); a plot whose
+    candidates changed before its turn is scored again. The update table is the one scoring each
+    plot at its turn gives (roles not `pairwise`: no look-ahead), to the last bit, and both kinds of
+    plot occur."""
+    from pipeline.tracker import run
+    plots = crossing_flights_among_clutter(params)
+    verdicts = []
+
+    def watched(*args):
+        verdicts.append(unchanged_near(*args))
+        return verdicts[-1]
+
+    unchanged_near = run._unchanged_near
+    monkeypatch.setattr(run, "_unchanged_near", watched)
+    tables = []
+    for pairwise in (True, False):
+        tracker = registry.compose(method, Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tracker.estimator.pairwise = pairwise
+        assert tracker.looks_ahead == pairwise
+        tables.append(track(plots, tracker))
+    assert (tables[0]["association"] == method).sum() > 50
+    assert True in verdicts and False in verdicts
+    for column in tables[0]:
+        np.testing.assert_array_equal(tables[0][column], tables[1][column], err_msg=column)
+
+
+def test_motion_table_starting_afresh_changes_nothing(params, monkeypatch):
+    """The estimator's table of F and Q by time step starts afresh when full (`MOTION_CACHE`): a
+    table of three steps gives the same update table as the default one."""
+    from pipeline.tracker import kalman
+    plots = crossing_flights_among_clutter(params)
+    tables = []
+    for cache in (kalman.MOTION_CACHE, 3):
+        monkeypatch.setattr(kalman, "MOTION_CACHE", cache)
+        tracker = registry.compose("kalman_cv", Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tables.append(track(plots, tracker))
+        assert len(tracker.estimator._motion_code) <= max(cache, 12)  # at most a prediction's steps beyond it
+    for column in tables[0]:
+        np.testing.assert_array_equal(tables[0][column], tables[1][column], err_msg=column)
+
+
+def test_single_filter_update_from_the_gates_inverse_is_its_own(params):
+    """The chi-square gate hands its inverse innovation covariances on with the prediction; a single
+    filter's update starting from them gives what inverting again gives, to the bit."""
+    settings = tf.untuned_filters(params)["cv"]
+    flight = noisy_turning_flight(params, np.random.default_rng(5))[:4]
+    results = []
+    for handed_on in (True, False):
+        live, estimator, slot = one_track(params, settings, flight)
+        gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+        for row in range(1, len(flight)):
+            scores = gate(live, np.array([slot]), row, estimator.predict(live, np.array([slot]), flight[row, 0]))
+            assert scores.prediction.innovation_inverse.shape == (1, 3, 3)
+            prediction = scores.prediction if handed_on else scores.prediction._replace(innovation_inverse=None)
+            position, covariance = estimator.update(live, slot, row, prediction, 0)
+            live.associate(slot, row, position)
+            results.append((position, covariance))
+    for (position, covariance), (own_position, own_covariance) in zip(results[:3], results[3:]):
+        np.testing.assert_array_equal(position, own_position)
+        np.testing.assert_array_equal(covariance, own_covariance)

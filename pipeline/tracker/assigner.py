@@ -93,16 +93,30 @@ class GlobalNearestPerScan:
 
     def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
         choices: list[int | None] = [None] * len(candidates)
-        slots = np.unique(np.concatenate([c.slots for c in candidates]))
+        paired = np.concatenate([c.slots for c in candidates])  # every (plot, track) pair's track, plot by plot
+        slots = np.unique(paired)
         if not len(slots):
             return choices
-        cost = np.full((len(candidates), len(slots)), np.inf)
-        for plot, c in enumerate(candidates):
-            cost[plot, np.searchsorted(slots, c.slots)] = c.errors
-        finite = np.isfinite(cost)
-        for plot, column in zip(*linear_sum_assignment(np.where(finite, cost, UNASSIGNABLE))):
-            if finite[plot, column]:
-                choices[plot] = int(np.searchsorted(candidates[plot].slots, slots[column]))
+        counts = [len(c.slots) for c in candidates]
+        plots, columns = np.repeat(np.arange(len(candidates)), counts), np.searchsorted(slots, paired)
+        errors = np.concatenate([c.errors for c in candidates])
+        gated = np.isfinite(errors)
+        # The cost matrix (plots x tracks) is filled from the pairs alone: at a thousand aircraft it has
+        # millions of cells, and every pass over it costs more than the pairs.
+        cost = np.full((len(candidates), len(slots)), UNASSIGNABLE)
+        cost[plots[gated], columns[gated]] = errors[gated]
+        finite = np.zeros(cost.shape, dtype=bool)
+        finite[plots[gated], columns[gated]] = True
+        chosen_plots, chosen_columns = linear_sum_assignment(cost)
+        kept = finite[chosen_plots, chosen_columns]
+        chosen_plots, chosen_columns = chosen_plots[kept], chosen_columns[kept]
+        # A pair's place in the list of pairs (plot by plot, tracks in order: its key plot * tracks + column
+        # increases along it), less its plot's first, is the track's place among the plot's candidates.
+        keys = plots * len(slots) + columns
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        at = np.searchsorted(keys, chosen_plots * len(slots) + chosen_columns) - first[chosen_plots]
+        for plot, place in zip(chosen_plots.tolist(), at.tolist()):
+            choices[plot] = place
         return choices
 
 

@@ -37,11 +37,16 @@ from pipeline.tracker.tracks import LiveTracks
 class Prediction(NamedTuple):
     """K tracks at one time: `positions` (K, 3) ECEF m, their covariances (K, 3, 3) m^2 or None
     when the estimator gives none, and `state`, the estimator's own predicted state, whatever it
-    is, indexable by track (row k is track k's): its update resumes from it."""
+    is, indexable by track (row k is track k's): its update resumes from it.
+    `innovation_inverse` (K, 3, 3) 1/m^2: the inverse of each row's innovation covariance (its
+    covariance plus its plot's measurement covariance) when a gate computed it (the chi-square
+    gate), else None; an update of that row with that plot may start from it rather than invert
+    again."""
 
     positions: np.ndarray
     covariances: np.ndarray | None
     state: Any = None
+    innovation_inverse: np.ndarray | None = None
 
 
 class Estimator(Protocol):

@@ -98,10 +98,13 @@ class ChiSquareGate:
         self.threshold = float(chi2.ppf(probability, df=3))
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
+        """The errors, and the prediction with the inverse innovation covariances it gated with (for
+        the update, `Prediction.innovation_inverse`)."""
         innovation = tracks.plots.position[row] - prediction.positions
         inverse, _ = inverse3(prediction.covariances + tracks.plots.covariance[row])
         distance = np.einsum("ni,nij,nj->n", innovation, inverse, innovation)
-        return Scores(within(distance, self.threshold), prediction)
+        return Scores(within(distance, self.threshold), Prediction(prediction.positions, prediction.covariances,
+                                                                   prediction.state, inverse))
 
 
 class BoundedChiSquareGate(ChiSquareGate):

@@ -19,8 +19,6 @@ radar's) and stores the result.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from pipeline import batch_filters, motion_models
@@ -47,7 +45,8 @@ class KalmanEstimator:
         self.mu = np.zeros((capacity, models))
         self.time = np.zeros(capacity)
         self.started = np.zeros(capacity, dtype=bool)
-        self.motion = functools.lru_cache(maxsize=MOTION_CACHE)(self._motion)
+        self._motions = np.empty((0, 2, models, size, size))  # F and Q of the time steps in `_motion_code`, in order
+        self._motion_code: dict[float, int] = {}
 
     def _grow(self, capacity: int) -> None:
         extra = capacity - len(self.time)
@@ -66,30 +65,47 @@ class KalmanEstimator:
         self.x[slots], self.P[slots], self.mu[slots], self.time[slots] = state.x, state.P, state.mu, time
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
-        """Start the filters of the tracks at `slots` not started yet, at their first plots."""
-        fresh = slots[~self.started[slots]]
-        if len(fresh):
-            fresh = np.unique(fresh)  # a scan's (track, plot) pairs hold a track once per plot
-            rows = [tracks.tracks[slot].rows[0] for slot in fresh]
-            plots = tracks.plots
-            started = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
-            self._store(fresh, batch_filters.mixed(self.settings, started), plots.time[rows])
-            self.started[fresh] = True
+        """Start the filters of the tracks at `slots`, not started yet, at their first plots."""
+        fresh = np.unique(slots)  # a scan's (track, plot) pairs hold a track once per plot
+        rows = [tracks.tracks[slot].rows[0] for slot in fresh]
+        plots = tracks.plots
+        first = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
+        self._store(fresh, batch_filters.mixed(self.settings, first), plots.time[rows])
+        self.started[fresh] = True
 
-    def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Each model's transition F and process noise Q (M, n, n each) over dt seconds; `motion`
-        is this, remembering the MOTION_CACHE most recent steps."""
-        table = batch_filters.motion(self.settings, np.array([dt]))[0]
-        return table[0], table[1]
+    def _motion(self, steps: list[float]) -> np.ndarray:
+        """Each model's transition F and process noise Q over each of `steps` (K,) seconds:
+        (K, 2, M, n, n), F then Q. Gathered in one call from a table of the steps seen so far (plot
+        times are quantised, so steps repeat), which starts afresh rather than hold more than
+        MOTION_CACHE steps; the steps not in it are tabulated together in one call (F and Q are
+        elementwise in dt, so each step's are the same as tabulated alone)."""
+        codes = self._motion_code
+        try:
+            return self._motions.take([codes[dt] for dt in steps], axis=0)
+        except KeyError:
+            pass
+        if len(codes) + len(steps) > MOTION_CACHE:
+            codes.clear()
+        missing = list(dict.fromkeys(dt for dt in steps if dt not in codes))
+        known = len(codes)
+        if known + len(missing) > len(self._motions):
+            extra = np.empty((max(known + len(missing), 2 * len(self._motions), 16) - len(self._motions),
+                              *self._motions.shape[1:]))
+            self._motions = np.concatenate([self._motions, extra])
+        self._motions[known:known + len(missing)] = batch_filters.motion(self.settings, np.array(missing))
+        codes.update((dt, known + k) for k, dt in enumerate(missing))
+        return self._motions.take([codes[dt] for dt in steps], axis=0)
 
     def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
         """The tracks' filters moved to `time` (one, or one per track: `pairwise`), unchanged:
         positions (K, 3), covariances (K, 3, 3), and the moved models as the state (a BatchState of
         K tracks)."""
-        self._start_filters(tracks, slots)
-        motions = [self.motion(dt) for dt in (time - self.time[slots]).tolist()]
-        state = batch_filters.moved(BatchState(self.x[slots], self.P[slots], self.mu[slots]),
-                                    np.array([F for F, _ in motions]), np.array([Q for _, Q in motions]))
+        started = self.started.take(slots)
+        if np.count_nonzero(started) < len(slots):
+            self._start_filters(tracks, slots[~started])
+        motion = self._motion((time - self.time.take(slots)).tolist())
+        state = batch_filters.moved(BatchState(self.x.take(slots, axis=0), self.P.take(slots, axis=0),
+                                               self.mu.take(slots, axis=0)), motion[:, 0], motion[:, 1])
         return Prediction(*batch_filters.position_estimates(state), state)
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
@@ -111,10 +127,14 @@ class KalmanEstimator:
 
     def _updated(self, tracks: LiveTracks, slots: np.ndarray | slice, rows: np.ndarray | slice,
                  prediction: Prediction, indices: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
-        """`update_pairs` for index arrays or, one track's update, slices (cheaper to index by)."""
-        plots, moved = tracks.plots, prediction.state
+        """`update_pairs` for index arrays or, one track's update, slices (cheaper to index by). A
+        single filter's innovation covariance is the prediction's (its models combined), so the
+        gate's inverse of it serves (`Prediction.innovation_inverse`)."""
+        plots, moved, inverse = tracks.plots, prediction.state, prediction.innovation_inverse
+        single = inverse is not None and moved.mu.shape[1] == 1
         posterior = batch_filters.updated(self.settings, BatchState(moved.x[indices], moved.P[indices],
                                                                     moved.mu[indices]),
-                                          plots.position[rows], plots.covariance[rows])
+                                          plots.position[rows], plots.covariance[rows],
+                                          inverse[indices][:, None] if single else None)
         self._store(slots, batch_filters.mixed(self.settings, posterior, each_alone=True), plots.time[rows])
         return batch_filters.position_estimates(posterior)

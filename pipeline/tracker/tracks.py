@@ -85,6 +85,7 @@ class LiveTracks:
         self._next_id = 0
         self._cells: dict[int, set[int]] = {}  # cube key -> slots of the live tracks in it
         self._cell_of: dict[int, int] = {}     # live slot -> its cube key
+        self.changed: set[int] = set()  # slots started, associated or removed since the caller last emptied it
 
     def __len__(self) -> int:
         return len(self.tracks) - len(self._free)
@@ -144,8 +145,8 @@ class LiveTracks:
             slots = [slot for step in _neighbours(int(reach)) for slot in cells.get(centre + step, ())]
         if not slots:
             return np.empty(0, dtype=np.int64)
-        slots = np.sort(np.array(slots, dtype=np.int64))
-        offset = self.position[slots] - self.plots.position[row]
+        slots = np.array(sorted(slots), dtype=np.int64)
+        offset = self.position.take(slots, axis=0) - self.plots.position[row]
         return slots[np.einsum("ij,ij->i", offset, offset) < distance_m ** 2]
 
     def carry(self, plots: Plots) -> int:
@@ -166,6 +167,7 @@ class LiveTracks:
         if not self._free:
             self._grow()
         slot = self._free.pop()
+        self.changed.add(slot)
         self.tracks[slot] = Track(self._next_id, [row])
         self._next_id += 1
         self.position[slot] = self.last_plot[slot] = self.plots.position[row]
@@ -182,6 +184,7 @@ class LiveTracks:
 
     def associate(self, slot: int, row: int, position: np.ndarray) -> None:
         """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight."""
+        self.changed.add(slot)
         self.tracks[slot].rows.append(row)
         self.position[slot] = position
         self._place(slot)
@@ -213,6 +216,7 @@ class LiveTracks:
 
     def _remove(self, slot: int) -> Track:
         track = self.tracks[slot]
+        self.changed.add(slot)
         self.tracks[slot] = None
         self._free.append(slot)
         self._generation[slot] += 1
