@@ -15,7 +15,10 @@ output): plots per wall second and per CPU second of the child (the CPU figure i
 a shared machine; the speed goal is judged on it). The long recordings (`--long-aircraft`
 aircraft for each of `--hours`) are written as a Parquet recording first (`--recordings`, a part
 at a time) and tracked by `python -m pipeline track` whole, as a user would: its wall time and
-peak memory, reading, tracking and writing `compute.chunk_plots` plots at a time.
+peak memory, reading, tracking and writing `compute.chunk_plots` plots at a time. With
+`--out-of-order` they are written with each pair of CHUNK_SCANS-scan parts swapped (files merged
+out of order), so that `track` sorts them first (`pipeline.external_sort`), in a temporary folder
+beside its output.
 
 The classical methods need only filters: by default the filters at params' start values (what
 `tune_kalman` starts from; tuned values change the cost little), written to a temporary models
@@ -29,6 +32,7 @@ of the 1000-aircraft case, a shorter run).
     python benchmarks/bench_scale.py                    # the issue's sizes, ~15 min on one core
     python benchmarks/bench_scale.py --minutes 1 --aircraft 1 100 --hours 0.1 --no-diagnose  # ~15 s
     python benchmarks/bench_scale.py --methods kalman_cv --aircraft --hours 1 4 8  # memory against length
+    python benchmarks/bench_scale.py --methods kalman_cv --aircraft --hours 1 4 --out-of-order  # sorted first
     python benchmarks/bench_scale.py --methods kalman_cv imm_gnn via --models models
 """
 
@@ -158,9 +162,12 @@ def dense_recording(radar, aircraft: int, false_plots: float, scans: int, seed: 
 
 
 def write_recording(folder: Path, radar, aircraft: int, false_plots: float, scans: int, seed: int,
-                    detection: float = 1.0) -> tuple[Path, Path, int]:
-    """`dense_parts` written as a `track` input (PLOT_INPUT_SCHEMA, no scenario id, with target ids)
-    and its radar description, a part at a time: the plots and radar files, and the plot count."""
+                    detection: float = 1.0, swapped: bool = False) -> tuple[Path, Path, int]:
+    """`dense_parts` written as a `track` input (PLOT_INPUT_SCHEMA, no scenario id, with target ids,
+    plot ids counting up in time order) and its radar description, a part at a time: the plots and
+    radar files, and the plot count. `swapped`: each pair of parts (CHUNK_SCANS scans each) written
+    later part first, as files merged out of order (half the plots out of time order, by up to
+    2 x CHUNK_SCANS scans: no day error), so that `track` must sort the recording."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -168,16 +175,26 @@ def write_recording(folder: Path, radar, aircraft: int, false_plots: float, scan
     from pipeline.plot_table import PLOT_INPUT_SCHEMA, RADAR_FILE_SCHEMA
     folder.mkdir(parents=True, exist_ok=True)
     plots_path, radar_path = folder / "plots.parquet", folder / "radar.parquet"
-    count = 0
+    count, held = 0, None
     with pq.ParquetWriter(plots_path, PLOT_INPUT_SCHEMA, compression="zstd") as writer:
-        for times, measured, _, target in dense_parts(radar, aircraft, false_plots, scans, seed, detection):
+        for number, (times, measured, _, target) in enumerate(dense_parts(radar, aircraft, false_plots, scans, seed,
+                                                                           detection)):
             n = len(times)
-            writer.write_table(pa.table({
+            part = pa.table({
                 "plot_id": np.arange(count, count + n, dtype=np.int64), "radar_id": np.full(n, radar.radar_id, np.int32),
                 "time_unix_s": times, "range_m": measured.range_m, "azimuth_deg": measured.azimuth_deg,
                 "altitude_m": measured.altitude_m, "scenario_id": pa.nulls(n, pa.int32()),
-                "target_id": target}, schema=PLOT_INPUT_SCHEMA))
+                "target_id": target}, schema=PLOT_INPUT_SCHEMA)
             count += n
+            if swapped and number % 2 == 0:
+                held = part
+                continue
+            writer.write_table(part)
+            if held is not None:
+                writer.write_table(held)
+                held = None
+        if held is not None:
+            writer.write_table(held)
     io.write_parquet(pa.table({"radar_id": [radar.radar_id], "latitude_deg": [radar.latitude_deg],
                                "longitude_deg": [radar.longitude_deg], "height_m": [radar.height_m],
                                "scan_period_s": [radar.scan_period_s], "sigma_range_m": [radar.sigma_range_m],
@@ -279,10 +296,10 @@ def run_command(args, config: Config, method: str, models: Path, folder: Path) -
     """`python -m pipeline track` on the config's recording (written to `folder` once): plots,
     wall seconds, peak RSS (bytes) and track updates."""
     from pipeline.params import load_params
-    recording = folder / config.name.replace(" ", "_").replace(",", "")
+    recording = folder / (config.name.replace(" ", "_").replace(",", "") + ("_swapped" if args.out_of_order else ""))
     if not (recording / "radar.parquet").exists():
         write_recording(recording, load_params(args.params).radar, config.aircraft, args.false_plots, config.scans,
-                        args.seed, args.detection)
+                        args.seed, args.detection, args.out_of_order)
     out = recording / f"tracks_{method}.parquet"
     _, _, seconds, peak = _waited([sys.executable, "-m", "pipeline", "track", "--params", args.params, "--plots",
                                    str(recording / "plots.parquet"), "--radar", str(recording / "radar.parquet"),
@@ -310,6 +327,9 @@ def main() -> None:
     parser.add_argument("--long-aircraft", type=int, default=50, help="aircraft at once in the long recordings")
     parser.add_argument("--false-plots", type=float, default=300.0, help="mean false plots per scan (default: 300)")
     parser.add_argument("--detection", type=float, default=1.0, help="detection probability per scan (default: 1)")
+    parser.add_argument("--out-of-order", action="store_true",
+                        help="write the long recordings with each pair of %d-scan parts swapped, so that `track` "
+                             "must sort them" % CHUNK_SCANS)
     parser.add_argument("--recordings", default=None,
                         help="folder for the long recordings, kept for reruns (default: a temporary folder)")
     parser.add_argument("--window", type=float, default=4000.0, help="young-track radius / VIA window, metres")
@@ -351,7 +371,7 @@ def main() -> None:
     if long:
         print(f"\n{'recording':24s} {'method':10s} {'plots':>10s} {'seconds':>8s} {'plots/s':>8s} {'updates':>10s} "
               f"{'confirmed':>9s} {'peak MiB':>9s}   (python -m pipeline track, chunks of "
-              f"{params.chunk_plots:,d} plots)")
+              f"{params.chunk_plots:,d} plots{'; out of order: parts swapped in pairs' if args.out_of_order else ''})")
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(args.recordings) if args.recordings else Path(scratch)
         models = Path(args.models) if args.models else _untuned_filters(params, Path(scratch))

@@ -108,8 +108,8 @@ def read_recording(plots_path: Path, radar_path: Path, radar: Radar, scratch: Pa
                    ) -> Iterator[RecordingParts]:
     """The recording of `plot_table.read_parquet_recording`, streamed (module docstring) within
     the block; a recording out of order sorted in a temporary folder in `scratch` (the system's
-    temporary folder if None; best on disk, not in memory), removed when the block ends. Raises
-    what `read_parquet_recording` raises."""
+    temporary folder if None; best on disk, not in memory), removed when the block ends however
+    it ends (a process killed outright leaves it). Raises what `read_parquet_recording` raises."""
     radars = io.read_parquet(radar_path, plot_table.RADAR_FILE_SCHEMA, optional=plot_table.OPTIONAL_RADAR_COLUMNS)
     input_checks.check_radars(radars, radar_path)
     sensors = plot_table.sensors(radars, radar)
@@ -126,7 +126,7 @@ def _opened(plots_path: Path, radar_path: Path, radar: Radar, sensors: Mapping[i
         counts = _scan(plots_path, sensors, folder)
     except _OutOfOrder:
         try:
-            path, counts, lags = folder / "sorted.parquet", *_sort(plots_path, sensors, folder)
+            path, counts, lags = _sort(plots_path, sensors, folder)
         except _NotStreamable:
             return plot_table.read_parquet_recording(plots_path, radar_path, radar)
     except _NotStreamable:
@@ -198,14 +198,14 @@ def _scan(path: Path, radars: Mapping[int, Radar], folder: Path) -> _Counts:
     counts = _Counts()
     for table, twins in _twin_free(counted(), radars):
         counts.add(table, twins)
-    if not ids.increasing and _repeats(path, folder):
+    if not ids.increasing and _repeats(path, folder / "ids"):
         raise _NotStreamable
     return counts
 
 
-def _sort(path: Path, radars: Mapping[int, Radar], folder: Path) -> tuple[_Counts, _Lags]:
+def _sort(path: Path, radars: Mapping[int, Radar], folder: Path) -> tuple[Path, _Counts, _Lags]:
     """The file's plots, checked in file order, sorted (scenario, time, file row) and written
-    without twins to `folder` / "sorted.parquet" (PLOT_INPUT_SCHEMA): their counts and the
+    without twins to a file in `folder` (PLOT_INPUT_SCHEMA): its path, the counts and the
     out-of-order warning's numbers. Raises _NotStreamable (module docstring)."""
     ids, by_radar, by_scenario = _PlotIds(), {}, {}
     rows = 0
@@ -220,10 +220,11 @@ def _sort(path: Path, radars: Mapping[int, Radar], folder: Path) -> tuple[_Count
             scenario = table.column("scenario_id").fill_null(NO_SCENARIO)
             lags = input_checks.time_lags(table.column("time_unix_s").to_numpy(), scenario.to_numpy(),
                                           latest=by_scenario)
-            keys = {"scenario_key": scenario, "row": np.arange(rows, rows + table.num_rows), "lag": lags}
+            keys = {"scenario_key": scenario, "row": pa.array(np.arange(rows, rows + table.num_rows)),
+                    "lag": pa.array(lags)}
             rows += table.num_rows
             for name, column in keys.items():
-                table = table.append_column(name, pa.array(column))
+                table = table.append_column(name, column)
             yield table
 
     runs = external_sort.sorted_runs(keyed(), _SORT_KEYS, folder / "runs")
@@ -237,10 +238,10 @@ def _sort(path: Path, radars: Mapping[int, Radar], folder: Path) -> tuple[_Count
             lags.add(table.column("lag").to_numpy())
             yield pa.Table.from_arrays(table.select(PLOT_INPUT_SCHEMA.names).columns, schema=PLOT_INPUT_SCHEMA)
 
-    external_sort.written(counted(), PLOT_INPUT_SCHEMA, folder / "sorted.parquet")
+    sorted_path = external_sort.written(counted(), PLOT_INPUT_SCHEMA, folder / "sorted.parquet")
     for run in (folder / "runs").iterdir():
         run.unlink()
-    return counts, lags
+    return sorted_path, counts, lags
 
 
 _SORT_KEYS = ("scenario_key", "time_unix_s", "row")  # the whole read's stable sort: scenario, time, file order

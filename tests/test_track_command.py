@@ -640,6 +640,27 @@ def test_an_out_of_order_recording_is_sorted_and_tracked_as_the_in_order_one(par
         assert (tmp_path / "ordered" / "tracks.parquet").read_bytes() == outputs["sorted"][0]
 
 
+def test_an_out_of_order_recording_with_an_error_gives_the_whole_reads_error_and_leaves_no_folder(params, tmp_path,
+                                                                                                  monkeypatch):
+    """The "late" recording with a plot id repeated far apart (rows 3 and 50: other runs), or with
+    the plots from row 60 on a day early, sorted in runs of 5 rows: the error of the whole read,
+    naming the value, and nothing left in the scratch folder."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(16))
+    late = out_of_order(in_order(plots), "late")
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    monkeypatch.setattr(external_sort, "RUN_ROWS", 5)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    for name, bad, message in (("repeated", with_values(late, "plot_id", [50], late.column("plot_id")[3].as_py()),
+                                f"plot_id {late.column('plot_id')[3].as_py()} is listed 2 times"),
+                               ("day", shifted(late, slice(60, None), -86400.0), "probably a day error")):
+        paths = tf.write_recording(tmp_path / name, bad, radars)
+        with pytest.raises(io.InputError, match=message):
+            with streamed_recording.read_recording(*paths, params.radar, scratch):
+                pass
+        assert not list(scratch.iterdir())
+
+
 def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
     """The tracker fails after the first chunk's updates were written: no output, no summary, no
     temporary file; an earlier output of the same name is left as it was."""
