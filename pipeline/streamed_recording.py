@@ -39,11 +39,12 @@ did: a bad file is read whole, once, to say what is wrong with it.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -121,16 +122,18 @@ def _opened(plots_path: Path, radar_path: Path, radar: Radar, sensors: Mapping[i
             ) -> RecordingParts:
     """The recording, streamed from its file when in order, from a sorted copy in `folder` when
     not, read whole when not valid (module docstring)."""
-    path, lags = plots_path, _Lags()
+    path, lags, counts = plots_path, _Lags(), None
     try:
         counts = _scan(plots_path, sensors, folder)
     except _OutOfOrder:
+        pass  # sorted below, once the exception (and the batches its frames hold) is let go
+    except _NotStreamable:
+        return plot_table.read_parquet_recording(plots_path, radar_path, radar)
+    if counts is None:
         try:
             path, counts, lags = _sort(plots_path, sensors, folder)
         except _NotStreamable:
             return plot_table.read_parquet_recording(plots_path, radar_path, radar)
-    except _NotStreamable:
-        return plot_table.read_parquet_recording(plots_path, radar_path, radar)
     skipped: dict[str, int] = {}
     if counts.twins:
         plot_table.note_twins(skipped, counts.twins, str(plots_path))
@@ -146,7 +149,7 @@ class _Counts:
 
     plots: int = 0
     twins: int = 0
-    by_radar: dict[int, int] = field(default_factory=dict)
+    by_radar: dict[int, int] = dataclasses.field(default_factory=dict)
     has_truth: bool = False
 
     def add(self, table: pa.Table, twins: int) -> None:
@@ -255,11 +258,11 @@ def _check_radars(table: pa.Table, radars: Mapping[int, Radar]) -> None:
 
 def _repeats(path: Path, folder: Path) -> bool:
     """Whether a plot id of the file at `path` occurs twice: the column sorted out of core in `folder`."""
-    file = pq.ParquetFile(path)
-    tables = (pa.table({"plot_id": batch.column("plot_id").cast(pa.int64())})
-              for batch in file.iter_batches(batch_size=io.READ_BATCH_ROWS, columns=["plot_id"]))
+    with pq.ParquetFile(path) as file:
+        runs = external_sort.sorted_runs((pa.table({"plot_id": batch.column("plot_id").cast(pa.int64())})
+                                          for batch in io.parquet_batches(file, ["plot_id"])), ["plot_id"], folder)
     last = None
-    for table in external_sort.merged(external_sort.sorted_runs(tables, ["plot_id"], folder), ["plot_id"]):
+    for table in external_sort.merged(runs, ["plot_id"]):
         ids = table.column("plot_id").to_numpy()
         if (ids[1:] == ids[:-1]).any() or ids[0] == last:
             return True
@@ -278,7 +281,7 @@ def _batches(path: Path, ordered: bool = True) -> Iterator[pa.Table]:
             raise _NotStreamable
         present = [field.name for field in PLOT_INPUT_SCHEMA if field.name in names]
         last: tuple[int, float] | None = None  # the previous batch's last scenario and time
-        for batch in file.iter_batches(batch_size=io.READ_BATCH_ROWS, columns=present):
+        for batch in io.parquet_batches(file, present):
             table = _checked(batch)
             last = _in_order(table, last) if ordered else last
             yield table

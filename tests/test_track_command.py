@@ -542,9 +542,9 @@ def test_an_in_order_recording_is_streamed_with_the_chunks_of_the_sorting_read(p
     recording = pa.concat_tables([scenario, with_column(copy, "plot_id", 20000 - np.arange(scenario.num_rows))])
     monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
     repeated = tf.write_recording(tmp_path / "repeated", with_values(recording, "plot_id", [50], 3), radars)
-    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"):
-        with streamed_recording.read_recording(*repeated, params.radar):
-            pass
+    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"), \
+            streamed_recording.read_recording(*repeated, params.radar):
+        pass
     paths = tf.write_recording(tmp_path, recording, radars)
     with streamed_recording.read_recording(*paths, params.radar) as streamed:
         assert_streamed_as_whole(streamed, plot_table.read_parquet_recording(*paths, params.radar), 5)
@@ -655,9 +655,8 @@ def test_an_out_of_order_recording_with_an_error_gives_the_whole_reads_error_and
                                 f"plot_id {late.column('plot_id')[3].as_py()} is listed 2 times"),
                                ("day", shifted(late, slice(60, None), -86400.0), "probably a day error")):
         paths = tf.write_recording(tmp_path / name, bad, radars)
-        with pytest.raises(io.InputError, match=message):
-            with streamed_recording.read_recording(*paths, params.radar, scratch):
-                pass
+        with pytest.raises(io.InputError, match=message), streamed_recording.read_recording(*paths, params.radar, scratch):
+            pass
         assert not list(scratch.iterdir())
 
 
