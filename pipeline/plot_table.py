@@ -25,8 +25,9 @@ is often slightly out of order, and the tracker needs time order.
 `recording` does all of that but the placing, and keeps the checked input columns (a
 `Recording`); the plots are placed from it a part at a time (`Recording.plots`,
 `Recording.scenarios`, `placed`), so that `track` holds a long recording in a fraction of the
-memory of its plot table. `plot_table` places every plot at once. A Parquet recording already in
-order need not be held at all: `pipeline.streamed_recording` reads it from its file as it goes.
+memory of its plot table. `plot_table` places every plot at once. A Parquet recording need not be
+held at all: `pipeline.streamed_recording` reads it from its file as it goes, sorted out of core
+first when it is out of order.
 """
 
 from __future__ import annotations
