@@ -12,8 +12,8 @@ out, since the rows a run has not yet given come after its last held row; the ru
 bound is used up and refilled, so each step frees at least one run's batch. The rows going out
 are sorted together (a stable numpy lexsort). At most MERGE_FAN_IN runs are merged at once
 (open files, and MERGE_FAN_IN x MERGE_BATCH_ROWS rows held); more runs are first merged in
-groups into longer runs (a multipass merge, sec. 5.4.1 again), each group's runs removed as
-its merged run is written.
+groups into longer runs (a multipass merge, sec. 5.4), each group's runs removed as its merged
+run is written.
 
 Rows with equal keys come out sorted but in no set order between runs: a stable sort needs a last
 key that tells every row apart (the caller's row number). Key columns hold no nulls.

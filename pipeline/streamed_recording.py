@@ -15,7 +15,8 @@ folder that `read_recording` removes when its block ends, however it ends: one p
 order checks each batch as the whole read would, numbers its rows and writes sorted runs keyed
 by (scenario, time, file row), so that the merge is the whole read's stable sort; the merge
 drops the twins, counts the plots and writes them, sorted, to one file, which is then streamed
-as an in-order recording is. Disk: at most about three times the recording file (measured: 35 MiB
+as an in-order recording is (the placing and the summary need the counts before the first chunk:
+one merge and a read of its output, rather than merging twice). Disk: at most about three times the recording file (measured: 35 MiB
 for a 13 MiB file of 0.84 M plots), while the sort runs.
 
 Streamed, a recording gives the plots, chunks, counts, warnings and errors of the whole read:
