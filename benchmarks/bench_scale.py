@@ -15,7 +15,12 @@ output): plots per wall second and per CPU second of the child (the CPU figure i
 a shared machine; the speed goal is judged on it). The long recordings (`--long-aircraft`
 aircraft for each of `--hours`) are written as a Parquet recording first (`--recordings`, a part
 at a time) and tracked by `python -m pipeline track` whole, as a user would: its wall time and
-peak memory, reading, tracking and writing `compute.chunk_plots` plots at a time.
+peak memory, reading, tracking and writing `compute.chunk_plots` plots at a time. With
+`--out-of-order` they are written with each pair of CHUNK_SCANS-scan parts swapped (files merged
+out of order), so that `track` sorts them first (`pipeline.external_sort`), in a temporary folder
+beside its output. `--reading` also reads each long recording without tracking it, in a fresh
+process, both as `track` does and whole (`plot_table.read_parquet_recording`, which sorts in
+memory): the reading's own peak memory, which the tracker's would otherwise hide.
 
 The classical methods need only filters: by default the filters at params' start values (what
 `tune_kalman` starts from; tuned values change the cost little), written to a temporary models
@@ -29,6 +34,8 @@ of the 1000-aircraft case, a shorter run).
     python benchmarks/bench_scale.py                    # the issue's sizes, ~15 min on one core
     python benchmarks/bench_scale.py --minutes 1 --aircraft 1 100 --hours 0.1 --no-diagnose  # ~15 s
     python benchmarks/bench_scale.py --methods kalman_cv --aircraft --hours 1 4 8  # memory against length
+    python benchmarks/bench_scale.py --methods kalman_cv --aircraft --hours 1 4 --out-of-order  # sorted first
+    python benchmarks/bench_scale.py --methods --aircraft --hours 1 4 24 --out-of-order --reading  # reading alone
     python benchmarks/bench_scale.py --methods kalman_cv imm_gnn via --models models
 """
 
@@ -158,9 +165,12 @@ def dense_recording(radar, aircraft: int, false_plots: float, scans: int, seed: 
 
 
 def write_recording(folder: Path, radar, aircraft: int, false_plots: float, scans: int, seed: int,
-                    detection: float = 1.0) -> tuple[Path, Path, int]:
-    """`dense_parts` written as a `track` input (PLOT_INPUT_SCHEMA, no scenario id, with target ids)
-    and its radar description, a part at a time: the plots and radar files, and the plot count."""
+                    detection: float = 1.0, swapped: bool = False) -> tuple[Path, Path, int]:
+    """`dense_parts` written as a `track` input (PLOT_INPUT_SCHEMA, no scenario id, with target ids,
+    plot ids counting up in time order) and its radar description, a part at a time: the plots and
+    radar files, and the plot count. `swapped`: each pair of parts (CHUNK_SCANS scans each) written
+    later part first, as files merged out of order (half the plots out of time order, by up to
+    2 x CHUNK_SCANS scans: no day error), so that `track` must sort the recording."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -168,16 +178,26 @@ def write_recording(folder: Path, radar, aircraft: int, false_plots: float, scan
     from pipeline.plot_table import PLOT_INPUT_SCHEMA, RADAR_FILE_SCHEMA
     folder.mkdir(parents=True, exist_ok=True)
     plots_path, radar_path = folder / "plots.parquet", folder / "radar.parquet"
-    count = 0
+    count, held = 0, None
     with pq.ParquetWriter(plots_path, PLOT_INPUT_SCHEMA, compression="zstd") as writer:
-        for times, measured, _, target in dense_parts(radar, aircraft, false_plots, scans, seed, detection):
+        for number, (times, measured, _, target) in enumerate(dense_parts(radar, aircraft, false_plots, scans, seed,
+                                                                           detection)):
             n = len(times)
-            writer.write_table(pa.table({
+            part = pa.table({
                 "plot_id": np.arange(count, count + n, dtype=np.int64), "radar_id": np.full(n, radar.radar_id, np.int32),
                 "time_unix_s": times, "range_m": measured.range_m, "azimuth_deg": measured.azimuth_deg,
                 "altitude_m": measured.altitude_m, "scenario_id": pa.nulls(n, pa.int32()),
-                "target_id": target}, schema=PLOT_INPUT_SCHEMA))
+                "target_id": target}, schema=PLOT_INPUT_SCHEMA)
             count += n
+            if swapped and number % 2 == 0:
+                held = part
+                continue
+            writer.write_table(part)
+            if held is not None:
+                writer.write_table(held)
+                held = None
+        if held is not None:
+            writer.write_table(held)
     io.write_parquet(pa.table({"radar_id": [radar.radar_id], "latitude_deg": [radar.latitude_deg],
                                "longitude_deg": [radar.longitude_deg], "height_m": [radar.height_m],
                                "scan_period_s": [radar.scan_period_s], "sigma_range_m": [radar.sigma_range_m],
@@ -275,14 +295,48 @@ def run_child(spec: dict) -> tuple[dict, float]:
     return json.loads(output.strip().splitlines()[-1]), peak
 
 
+def _recording(args, config: Config, folder: Path) -> Path:
+    """The folder of the config's recording in `folder`, written the first time it is asked for."""
+    from pipeline.params import load_params
+    recording = folder / (config.name.replace(" ", "_").replace(",", "") + ("_swapped" if args.out_of_order else ""))
+    if not (recording / "radar.parquet").exists():
+        write_recording(recording, load_params(args.params).radar, config.aircraft, args.false_plots, config.scans,
+                        args.seed, args.detection, args.out_of_order)
+    return recording
+
+
+def read_child(spec: dict) -> dict:
+    """Open a recording as `track` does (`streamed_recording.read_recording`, sorting in `scratch` if
+    it must) or whole (`plot_table.read_parquet_recording`, sorting in memory), and place all its
+    plots chunk by chunk without tracking them: the plots and wall seconds."""
+    import contextlib
+
+    from pipeline import plot_table, streamed_recording
+    from pipeline.params import load_params
+    radar = load_params(spec["params"]).radar
+    paths = Path(spec["plots"]), Path(spec["radar"])
+    start = time.perf_counter()
+    opened = (contextlib.nullcontext(plot_table.read_parquet_recording(*paths, radar)) if spec["whole"]
+              else streamed_recording.read_recording(*paths, radar, Path(spec["scratch"])))
+    with opened as recording:
+        plots = sum(len(chunk) for _, chunks in recording.scenarios(spec["chunk_plots"]) for chunk in chunks)
+    return {"plots": plots, "seconds": time.perf_counter() - start}
+
+
+def run_reading(args, config: Config, whole: bool, folder: Path) -> dict:
+    """`read_child` on the config's recording in a fresh process: plots, wall seconds, peak RSS (bytes)."""
+    from pipeline.params import load_params
+    recording = _recording(args, config, folder)
+    spec = {"params": args.params, "plots": str(recording / "plots.parquet"), "radar": str(recording / "radar.parquet"),
+            "whole": whole, "scratch": str(recording), "chunk_plots": load_params(args.params).chunk_plots}
+    _, output, _, peak = _waited([sys.executable, __file__, "--read-child", json.dumps(spec)], stderr=subprocess.DEVNULL)
+    return {**json.loads(output.strip().splitlines()[-1]), "peak": peak}
+
+
 def run_command(args, config: Config, method: str, models: Path, folder: Path) -> dict:
     """`python -m pipeline track` on the config's recording (written to `folder` once): plots,
     wall seconds, peak RSS (bytes) and track updates."""
-    from pipeline.params import load_params
-    recording = folder / config.name.replace(" ", "_").replace(",", "")
-    if not (recording / "radar.parquet").exists():
-        write_recording(recording, load_params(args.params).radar, config.aircraft, args.false_plots, config.scans,
-                        args.seed, args.detection)
+    recording = _recording(args, config, folder)
     out = recording / f"tracks_{method}.parquet"
     _, _, seconds, peak = _waited([sys.executable, "-m", "pipeline", "track", "--params", args.params, "--plots",
                                    str(recording / "plots.parquet"), "--radar", str(recording / "radar.parquet"),
@@ -297,8 +351,8 @@ def run_command(args, config: Config, method: str, models: Path, folder: Path) -
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--params", default="params.yaml", help="radar and tracker params (default: params.yaml)")
-    parser.add_argument("--methods", nargs="+", default=["kalman_cv", "imm_gnn"],
-                        help="methods to run (default: kalman_cv imm_gnn; via needs --models)")
+    parser.add_argument("--methods", nargs="*", default=["kalman_cv", "imm_gnn"],
+                        help="methods to run (default: kalman_cv imm_gnn; via needs --models; none: no tracking)")
     parser.add_argument("--models", default=None,
                         help="folder of trained models and tuned filters (default: untuned filters, no networks)")
     parser.add_argument("--aircraft", nargs="*", type=int, default=[1, 10, 100, 1000],
@@ -310,15 +364,25 @@ def main() -> None:
     parser.add_argument("--long-aircraft", type=int, default=50, help="aircraft at once in the long recordings")
     parser.add_argument("--false-plots", type=float, default=300.0, help="mean false plots per scan (default: 300)")
     parser.add_argument("--detection", type=float, default=1.0, help="detection probability per scan (default: 1)")
+    parser.add_argument("--out-of-order", action="store_true",
+                        help=f"write the long recordings with each pair of {CHUNK_SCANS}-scan parts swapped, so that "
+                             f"`track` must sort them")
     parser.add_argument("--recordings", default=None,
                         help="folder for the long recordings, kept for reruns (default: a temporary folder)")
     parser.add_argument("--window", type=float, default=4000.0, help="young-track radius / VIA window, metres")
     parser.add_argument("--seed", type=int, default=16)
     parser.add_argument("--no-diagnose", action="store_true", help="skip the profile of a failed speed goal")
+    parser.add_argument("--reading", action="store_true",
+                        help="also read each long recording without tracking it, as `track` does and whole "
+                             "(sorted in memory): the reading's own peak memory")
     parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--read-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(json.loads(args.child))))
+        return
+    if args.read_child:
+        print(json.dumps(read_child(json.loads(args.read_child))))
         return
     if "via" in args.methods and not args.models:
         parser.error("via needs trained networks: give --models")
@@ -348,10 +412,10 @@ def main() -> None:
     if sweep:
         print("(in memory, the tracking loop only; slots: the live-track arrays' size at the end; conf.: share of "
               "the aircraft's plots that went to confirmed tracks; peak: the child's peak RSS)")
-    if long:
+    if long and args.methods:
         print(f"\n{'recording':24s} {'method':10s} {'plots':>10s} {'seconds':>8s} {'plots/s':>8s} {'updates':>10s} "
               f"{'confirmed':>9s} {'peak MiB':>9s}   (python -m pipeline track, chunks of "
-              f"{params.chunk_plots:,d} plots)")
+              f"{params.chunk_plots:,d} plots{'; out of order: parts swapped in pairs' if args.out_of_order else ''})")
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(args.recordings) if args.recordings else Path(scratch)
         models = Path(args.models) if args.models else _untuned_filters(params, Path(scratch))
@@ -362,6 +426,14 @@ def main() -> None:
                 print(f"{config.name:24s} {method:10s} {result['plots']:10,d} {result['seconds']:8,.0f} "
                       f"{result['plots'] / result['seconds']:8,.0f} {result['updates']:10,d} "
                       f"{result['confirmed']:9,d} {result['peak'] / MIB:9,.0f}", flush=True)
+        if long and args.reading:
+            print(f"\n{'recording':24s} {'reader':10s} {'plots':>10s} {'seconds':>8s} {'peak MiB':>9s}   (read and "
+                  f"placed chunk by chunk, not tracked)")
+        for config in long if args.reading else ():
+            for whole in (False, True):
+                result = run_reading(args, config, whole, folder)
+                print(f"{config.name:24s} {'whole' if whole else 'track':10s} {result['plots']:10,d} "
+                      f"{result['seconds']:8,.1f} {result['peak'] / MIB:9,.0f}", flush=True)
     goals(args, rows, base)
 
 

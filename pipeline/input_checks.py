@@ -134,16 +134,33 @@ def changes(order: np.ndarray, keys: tuple[np.ndarray, ...] | list[np.ndarray]) 
     return differs
 
 
-def time_lags(times: np.ndarray, *groups: np.ndarray) -> np.ndarray:
+def time_lags(times: np.ndarray, *groups: np.ndarray, latest: dict[tuple, float] | None = None) -> np.ndarray:
     """How far (s) each plot is earlier than the latest plot before it (in the given order) of its
-    group (rows with equal `groups` values); 0 for a plot in time order."""
+    group (rows with equal `groups` values); 0 for a plot in time order. `latest`, when given, holds
+    each group's latest time (keyed by its `groups` values) in the plots before these, and is
+    updated to include these: a file read a batch at a time gives the lags of the file read whole
+    (a maximum is exact, so the same differences are taken)."""
     order = np.lexsort((np.arange(len(times)), *reversed(groups)))
     starts = np.flatnonzero(np.r_[True, changes(order, groups)])
     lags = np.zeros(len(times))
     for start, stop in zip(starts, [*starts[1:], len(times)]):
         rows = order[start:stop]
-        lags[rows] = np.maximum.accumulate(times[rows]) - times[rows]
+        running = np.maximum.accumulate(times[rows])
+        if latest is not None and len(rows):
+            key = tuple(group[rows[0]].item() for group in groups)
+            running = np.maximum(running, latest.get(key, -np.inf))
+            latest[key] = float(running[-1])
+        lags[rows] = running - times[rows]
     return lags
+
+
+def radar_lags(plots: pa.Table, latest: dict[tuple, float] | None = None) -> np.ndarray:
+    """`time_lags` (with `latest`) of plots (PLOT_INPUT_SCHEMA, in file order) within their radar
+    and scenario (no scenario id a group of its own): the backward steps the day-error check judges."""
+    scenario = plots.column("scenario_id")
+    return time_lags(plots.column("time_unix_s").to_numpy(), scenario.fill_null(0).to_numpy(),
+                     scenario.is_null().to_numpy(zero_copy_only=False), plots.column("radar_id").to_numpy(),
+                     latest=latest)
 
 
 def _check_time_jumps(plots: pa.Table, path: Path) -> None:
@@ -152,8 +169,7 @@ def _check_time_jumps(plots: pa.Table, path: Path) -> None:
     are a day early; sorting them would track them a day before the rest."""
     scenario = plots.column("scenario_id")
     times, radar_ids = plots.column("time_unix_s").to_numpy(), plots.column("radar_id").to_numpy()
-    lags = time_lags(times, scenario.fill_null(0).to_numpy(), scenario.is_null().to_numpy(zero_copy_only=False),
-                     radar_ids)
+    lags = radar_lags(plots)
     jumps = lags > MAX_BACKWARD_JUMP_S
     if jumps.any():
         row = int(np.argmax(jumps))

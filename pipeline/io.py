@@ -262,6 +262,17 @@ def _first_line(error: Exception) -> str:
 READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
 
 
+def parquet_batches(file: pq.ParquetFile, columns: list[str] | None = None, batch_rows: int | None = None
+                    ) -> Iterator[pa.RecordBatch]:
+    """The rows of `file` (its `columns`, all if None) `batch_rows` (READ_BATCH_ROWS if None) at a
+    time, a row group at a time, a batch never crossing a row group's end. `iter_batches` over the
+    whole file pre-buffers ahead, across row groups: its memory grows with the file (measured:
+    Arrow's pool peaked at 12, 22 and 35 MiB reading 0.2, 0.8 and 1.7 M plots); a row group at a
+    time it holds one row group (6 MiB for each of those)."""
+    for group in range(file.num_row_groups):
+        yield from file.iter_batches(batch_size=batch_rows or READ_BATCH_ROWS, row_groups=[group], columns=columns)
+
+
 def read_numeric_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] = ()) -> pa.Table:
     """`read_parquet` (the same checks, in the same order, with the same errors) for a schema of
     integer and float columns, in a fraction of its memory: the columns are numpy arrays filled

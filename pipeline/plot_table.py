@@ -25,8 +25,9 @@ is often slightly out of order, and the tracker needs time order.
 `recording` does all of that but the placing, and keeps the checked input columns (a
 `Recording`); the plots are placed from it a part at a time (`Recording.plots`,
 `Recording.scenarios`, `placed`), so that `track` holds a long recording in a fraction of the
-memory of its plot table. `plot_table` places every plot at once. A Parquet recording already in
-order need not be held at all: `pipeline.streamed_recording` reads it from its file as it goes.
+memory of its plot table. `plot_table` places every plot at once. A Parquet recording need not be
+held at all: `pipeline.streamed_recording` reads it from its file as it goes, sorted out of core
+first when it is out of order.
 """
 
 from __future__ import annotations
@@ -265,10 +266,15 @@ def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str)
     """Warn of plots earlier than a plot before them in their scenario: how many will move when
     sorted, and the largest backward step (a day error shows as about 86400 s)."""
     lags = input_checks.time_lags(times, scenario_ids)
-    moved = int((lags > 0).sum())
+    note_out_of_order(int((lags > 0).sum()), float(lags.max(initial=0.0)), source)
+
+
+def note_out_of_order(moved: int, largest: float, source: str) -> None:
+    """Warn, if `moved` > 0, of `moved` plots out of time order, the largest `largest` s earlier
+    than a plot before them in their scenario (`input_checks.time_lags`)."""
     if moved:
         log.warning("%s: %d plots out of time order (up to %.1f s earlier than a plot before them); sorted by time",
-                    source, moved, lags.max())
+                    source, moved, largest)
 
 
 def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plots:

@@ -15,6 +15,7 @@ own, the plots of all its radars together.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 from datetime import date
@@ -158,10 +159,11 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
     summary beside it (`summary_path`), under the track management rule `management` (one of
     `registry.MANAGEMENT`; None: params' `tracker.management`). The recording is placed, tracked and written
-    `compute.chunk_plots` plots at a time: a Parquet recording in time order is read from its file
-    as it goes (`streamed_recording`), one out of order held and sorted first; an ASTERIX recording
-    is decoded whole first. Nothing is written on an error, nor when `out` or its summary would
-    replace an input (`io.check_outputs`)."""
+    `compute.chunk_plots` plots at a time: a Parquet recording is read from its file as it goes
+    (`streamed_recording`), one out of time order sorted first into a temporary folder beside `out`
+    (in its nearest existing folder), removed at the end; an ASTERIX recording is decoded whole
+    first. Nothing is written on an error, nor when `out` or its summary would replace an input
+    (`io.check_outputs`)."""
     inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
               "--asterix": asterix_paths}
     io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
@@ -172,15 +174,24 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
         if plots_path is not None:
             raise io.InputError("give --plots (Parquet) or --asterix files, not both")
-        recording = plot_table.read_asterix_recording(asterix_paths, first_date, params.radar, radar_path)
+        opened = contextlib.nullcontext(plot_table.read_asterix_recording(asterix_paths, first_date, params.radar,
+                                                                          radar_path))
     else:
         if plots_path is None or radar_path is None:
             raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
-        recording = streamed_recording.read_recording(plots_path, radar_path, params.radar)
+        scratch = next(folder for folder in out.absolute().parents if folder.exists())
+        opened = streamed_recording.read_recording(plots_path, radar_path, params.radar, scratch)
+    with opened as recording:
+        _write_tracks(recording, method, window_m, params, models_dir, out,
+                      plots_path or ", ".join(map(str, asterix_paths)))
+
+
+def _write_tracks(recording: streamed_recording.RecordingParts, method: str, window_m: float, params: Params,
+                  models_dir: Path, out: Path, source: Path | str) -> None:
+    """`run_track`'s work once the recording (read from `source`) is open."""
     summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
     if not len(recording):
-        log.warning("track: no plots to track in %s: the output will hold no track update",
-                    plots_path or ", ".join(map(str, asterix_paths)))
+        log.warning("track: no plots to track in %s: the output will hold no track update", source)
     with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir):

@@ -7,6 +7,7 @@ writes them) is a checkout that has run `dvc repro tune_kalman` and no training.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 from pathlib import Path
@@ -16,8 +17,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import (association_net, association_report, baselines, cli, geodesy, io, model_store, plot_table,
-                      streamed_recording)
+from pipeline import (association_net, association_report, baselines, cli, external_sort, geodesy, io, model_store,
+                      plot_table, streamed_recording)
 from pipeline import track_command as track_command_module
 from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
@@ -541,46 +542,122 @@ def test_an_in_order_recording_is_streamed_with_the_chunks_of_the_sorting_read(p
     recording = pa.concat_tables([scenario, with_column(copy, "plot_id", 20000 - np.arange(scenario.num_rows))])
     monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
     repeated = tf.write_recording(tmp_path / "repeated", with_values(recording, "plot_id", [50], 3), radars)
-    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"):
-        streamed_recording.read_recording(*repeated, params.radar)
+    with pytest.raises(io.InputError, match="plot_id 3 is listed 2 times"), \
+            streamed_recording.read_recording(*repeated, params.radar):
+        pass
     paths = tf.write_recording(tmp_path, recording, radars)
-    streamed = streamed_recording.read_recording(*paths, params.radar)
-    whole = plot_table.read_parquet_recording(*paths, params.radar)
+    with streamed_recording.read_recording(*paths, params.radar) as streamed:
+        assert_streamed_as_whole(streamed, plot_table.read_parquet_recording(*paths, params.radar), 5)
+        assert streamed.path == paths[0]
+    assert len(streamed) == recording.num_rows - 6
+    assert streamed.skipped == {"duplicate plot": 6}
+
+
+def assert_streamed_as_whole(streamed, whole: plot_table.Recording, chunk_plots: int) -> None:
+    """`streamed` (a StreamedRecording) gives the plots, counts and chunks of the whole read."""
     assert isinstance(streamed, streamed_recording.StreamedRecording)
-    assert len(streamed) == len(whole) == recording.num_rows - 6
-    assert streamed.skipped == whole.skipped == {"duplicate plot": 6}
+    assert len(streamed) == len(whole) and streamed.skipped == whole.skipped
     assert streamed.plot_counts == whole.plot_counts and streamed.has_truth == whole.has_truth
-    streamed_chunks = [(scenario_id, chunk) for scenario_id, chunks in streamed.scenarios(5) for chunk in chunks]
-    whole_chunks = [(scenario_id, chunk) for scenario_id, chunks in whole.scenarios(5) for chunk in chunks]
+    streamed_chunks = [(s, chunk) for s, chunks in streamed.scenarios(chunk_plots) for chunk in chunks]
+    whole_chunks = [(s, chunk) for s, chunks in whole.scenarios(chunk_plots) for chunk in chunks]
     assert [(s, len(c)) for s, c in streamed_chunks] == [(s, len(c)) for s, c in whole_chunks]
-    assert {s for s, _ in streamed_chunks} == {7, 8}
     for (_, got), (_, expected) in zip(streamed_chunks, whole_chunks):
         for name in ("plot_id", "radar_id", "scenario_id", "time", "position", "range_m", "covariance", "target_id"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
 
 
+def out_of_order(plots: pa.Table, case: str) -> pa.Table:
+    """The in-order recording `plots` out of order as `case` says."""
+    if case == "late":  # rows 20..29 after 30..39, as files merged slightly out of order
+        return plots.take(np.r_[0:20, 30:40, 20:30, 40:plots.num_rows])
+    if case == "late, times of scan":  # as "late", each plot stamped with the time of its 6 s scan (ties)
+        times = plots.column("time_unix_s").to_numpy()
+        return out_of_order(with_column(plots, "time_unix_s", times - np.mod(times - times[0], 6.0)), "late")
+    if case == "radars one after the other":  # each radar's file in turn; radar 2's scans are 3 s after radar 1's
+        radar_ids = plots.column("radar_id").to_numpy()
+        return plots.take(np.r_[np.flatnonzero(radar_ids == 2), np.flatnonzero(radar_ids == 1)])
+    # "twins and scenarios": scenario 8 (a copy) first, then 7 late as above, with twins of rows 3, 25
+    # and 31 (new plot ids) at the end: their plots are in other runs
+    late = out_of_order(plots, "late")
+    copy = with_column(with_column(late, "scenario_id", np.full(late.num_rows, 8)), "plot_id",
+                       late.column("plot_id").to_numpy() + 10000)
+    twins = with_column(late.take([3, 25, 31]), "plot_id", np.array([90003, 90025, 90031]))
+    return pa.concat_tables([copy, late, twins])
+
+
+@contextlib.contextmanager
+def whole_read(plots_path: Path, radar_path: Path, radar, scratch: Path):
+    """`streamed_recording.read_recording` as it was: the whole read, sorted in memory."""
+    yield plot_table.read_parquet_recording(plots_path, radar_path, radar)
+
+
+@pytest.mark.parametrize("case, sizes", [
+    ("late", "default"),
+    ("late", "runs smaller than the batch"),
+    ("late, times of scan", "runs smaller than the batch"),
+    ("radars one after the other", "runs smaller than the batch"),
+    ("twins and scenarios", "runs smaller than the batch"),
+])
 def test_an_out_of_order_recording_is_sorted_and_tracked_as_the_in_order_one(params, tmp_path, filters_only,
-                                                                             monkeypatch):
-    """The in-order recording, and the same plots with rows 20..29 after 30..39 (as files merged
-    slightly out of order): the second is read whole and sorted, the first streamed; both give the
-    same output file, of several row groups (here 16 updates each), with the rows of the whole
-    plot table tracked at once."""
+                                                                             monkeypatch, caplog, case, sizes):
+    """An in-order recording made out of order (`out_of_order`) is sorted out of core, in a folder
+    beside the output that is gone afterwards, and tracked from the sorted copy: the output file (of
+    several row groups, here 16 updates each) and summary are byte for byte those of the whole read
+    that sorts in memory, with the same warnings (plots moved and the largest step back, twins);
+    its chunks are the whole read's. Read 7 rows at a time, runs of 5 rows merged 3 rows and 2 runs
+    at a time (merges of merges), or at the default sizes. The in-order recording's output is the
+    same tracks (the plot ids aside where the case renumbers them)."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(15))
     ordered = in_order(plots)
-    swapped = ordered.take(np.r_[0:20, 30:40, 20:30, 40:ordered.num_rows])
+    recording = out_of_order(ordered, case)
     monkeypatch.setattr(track_command_module, "TRACK_ROW_GROUP_ROWS", 16)
-    for name, recording in (("ordered", ordered), ("swapped", swapped)):
+    if sizes != "default":
+        for module, name, value in ((io, "READ_BATCH_ROWS", 7), (external_sort, "RUN_ROWS", 5),
+                                    (external_sort, "MERGE_BATCH_ROWS", 3), (external_sort, "MERGE_FAN_IN", 2)):
+            monkeypatch.setattr(module, name, value)
+    paths = tf.write_recording(tmp_path / "recording", recording, radars)
+    with streamed_recording.read_recording(*paths, params.radar) as streamed:
+        assert streamed.path != paths[0] and streamed.path.parent.name.startswith(".track-sort.")
+        assert_streamed_as_whole(streamed, plot_table.read_parquet_recording(*paths, params.radar), 5)
+    assert not streamed.path.parent.exists()
+    outputs, logs = {}, {}
+    for name in ("sorted", "whole"):
+        if name == "whole":
+            monkeypatch.setattr(streamed_recording, "read_recording", whole_read)
+        caplog.clear()
         assert track_command(tmp_path / name, filters_only, "imm", recording, radars, {"compute.chunk_plots": 7}) == 0
-    paths = [tmp_path / name / "recording" / "plots.parquet" for name in ("ordered", "swapped")]
-    kinds = [type(streamed_recording.read_recording(path, path.with_name("radar.parquet"), params.radar))
-             for path in paths]
-    assert kinds == [streamed_recording.StreamedRecording, plot_table.Recording]
-    output = [(tmp_path / name / "tracks.parquet").read_bytes() for name in ("ordered", "swapped")]
-    assert output[0] == output[1]
-    assert pq.ParquetFile(tmp_path / "ordered" / "tracks.parquet").metadata.num_row_groups > 1
-    whole = track_recording(plot_table.read_parquet_plots(paths[1], paths[1].with_name("radar.parquet"),
-                                                          params.radar), "imm", 4000.0, params, filters_only)
-    assert pq.read_table(tmp_path / "ordered" / "tracks.parquet").to_pandas().equals(whole.to_pandas())  # NaN == NaN
+        outputs[name] = [(tmp_path / name / file).read_bytes() for file in ("tracks.parquet", "tracks.summary.json")]
+        logs[name] = [r.getMessage().replace(str(tmp_path / name), "") for r in caplog.records if r.levelname == "WARNING"]
+        assert sorted(p.name for p in (tmp_path / name).iterdir()) == ["params.yaml", "recording", "tracks.parquet",
+                                                                     "tracks.summary.json"]
+    assert outputs["sorted"] == outputs["whole"]
+    assert logs["sorted"] == logs["whole"] and any("out of time order" in message for message in logs["sorted"])
+    assert any("duplicate plots" in message for message in logs["sorted"]) == (case == "twins and scenarios")
+    assert pq.ParquetFile(tmp_path / "sorted" / "tracks.parquet").metadata.num_row_groups > 1
+    if case in ("late", "radars one after the other"):
+        assert track_command(tmp_path / "ordered", filters_only, "imm", ordered, radars,
+                             {"compute.chunk_plots": 7}) == 0
+        assert (tmp_path / "ordered" / "tracks.parquet").read_bytes() == outputs["sorted"][0]
+
+
+def test_an_out_of_order_recording_with_an_error_gives_the_whole_reads_error_and_leaves_no_folder(params, tmp_path,
+                                                                                                  monkeypatch):
+    """The "late" recording with a plot id repeated far apart (rows 3 and 50: other runs), or with
+    the plots from row 60 on a day early, sorted in runs of 5 rows: the error of the whole read,
+    naming the value, and nothing left in the scratch folder."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(16))
+    late = out_of_order(in_order(plots), "late")
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 7)
+    monkeypatch.setattr(external_sort, "RUN_ROWS", 5)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    for name, bad, message in (("repeated", with_values(late, "plot_id", [50], late.column("plot_id")[3].as_py()),
+                                f"plot_id {late.column('plot_id')[3].as_py()} is listed 2 times"),
+                               ("day", shifted(late, slice(60, None), -86400.0), "probably a day error")):
+        paths = tf.write_recording(tmp_path / name, bad, radars)
+        with pytest.raises(io.InputError, match=message), streamed_recording.read_recording(*paths, params.radar, scratch):
+            pass
+        assert not list(scratch.iterdir())
 
 
 def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
