@@ -72,11 +72,11 @@ class AutoencoderGate:
         if "threshold" not in autoencoder.extras:
             raise ValueError("the autoencoder model has no calibrated threshold; retrain it with train_autoencoder")
         self.model, self.run, self.threshold = autoencoder, runnable, float(autoencoder.extras["threshold"])
-        self.history = self.latest_plots = autoencoder.config.input_steps - 1
+        self.latest_plots = autoencoder.config.input_steps - 1  # the plots before the candidate
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         features = tracks.plots.features
-        rows = np.array([[*tracks.tracks[slot].rows[-self.history:], row] for slot in slots])
+        rows = np.array([[*tracks.tracks[slot].rows[-self.latest_plots:], row] for slot in slots])
         windows = features[rows]
         origin = self.model.scaler.origin(windows, tracks.plots.radar_position[rows[:, 0]])
         scaled = self.model.scaler.transform(windows, origin)
