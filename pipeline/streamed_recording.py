@@ -8,7 +8,8 @@ passes over the file, `io.READ_BATCH_ROWS` rows at a time: the first finds that 
 order and valid and counts what the summary and the placing need (plots by radar, twins,
 whether any plot has a target id); the second (`StreamedRecording.scenarios`) drops the twins,
 places the plots and hands them on `compute.chunk_plots` at a time. Memory then follows a batch
-and a chunk, not the recording's length.
+and a chunk, not the recording's length (the file is read without pyarrow's pre-buffering, which
+would keep every row group read: `io.parquet_file`).
 
 Streamed, a recording gives the plots, chunks, counts, warnings and errors of the whole read:
 - in order: each scenario's plots in non-decreasing time, scenarios in increasing id (a null id
@@ -131,7 +132,7 @@ def _batches(path: Path) -> Iterator[pa.Table]:
     """The file's plots, io.READ_BATCH_ROWS at a time, in PLOT_INPUT_SCHEMA (a missing optional
     column null); raises _NotStreamable at the first batch that is not valid or not in order."""
     try:
-        file = pq.ParquetFile(path)
+        file = io.parquet_file(path)
         names = file.schema_arrow.names
         if any(field.name not in names and field.name not in OPTIONAL_PLOT_COLUMNS for field in PLOT_INPUT_SCHEMA):
             raise _NotStreamable
