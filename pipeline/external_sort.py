@@ -112,7 +112,7 @@ def _merged_run(runs: list[Path], keys: Sequence[str], path: Path) -> Path:
 def _merge(runs: list[Path], keys: Sequence[str]) -> Iterator[pa.Table]:
     """One k-way merge of `runs` (module docstring)."""
     with contextlib.ExitStack() as stack:
-        readers = [io.parquet_batches(stack.enter_context(pq.ParquetFile(run)), batch_rows=MERGE_BATCH_ROWS)
+        readers = [io.parquet_batches(stack.enter_context(io.parquet_file(run)), batch_rows=MERGE_BATCH_ROWS)
                    for run in runs]
         held = [_next(reader) for reader in readers]
         while any(table is not None for table in held):

@@ -273,6 +273,16 @@ def parquet_batches(file: pq.ParquetFile, columns: list[str] | None = None, batc
         yield from file.iter_batches(batch_size=batch_rows or READ_BATCH_ROWS, row_groups=[group], columns=columns)
 
 
+def parquet_file(path: str | Path) -> pq.ParquetFile:
+    """`path` opened to be read a batch at a time (`iter_batches`) in memory that does not grow with
+    the file. pyarrow's default `pre_buffer` keeps the bytes of every row group read so far in the
+    reader's cache until the file is let go: by its end the whole compressed file (measured with
+    pyarrow 25: 85 MiB of Arrow memory held by the end of a 24-hour dense recording of 84 MB, 6 MiB
+    without; issue 16, item 4). Without it each column chunk is read when it is decoded, which on a
+    local disk costs nothing. Raises what `pq.ParquetFile` raises."""
+    return pq.ParquetFile(path, pre_buffer=False)
+
+
 def read_numeric_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] = ()) -> pa.Table:
     """`read_parquet` (the same checks, in the same order, with the same errors) for a schema of
     integer and float columns, in a fraction of its memory: the columns are numpy arrays filled
@@ -283,7 +293,7 @@ def read_numeric_parquet(path: str | Path, schema: pa.Schema, optional: tuple[st
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     try:
-        file = pq.ParquetFile(path)
+        file = parquet_file(path)
         present = [field for field in schema if field.name in file.schema_arrow.names]
         columns = {field.name: _NumericColumn(field, file.metadata.num_rows) for field in present}
         if present:

@@ -8,7 +8,8 @@ passes over the file, `io.READ_BATCH_ROWS` rows at a time: the first finds that 
 order and valid and counts what the summary and the placing need (plots by radar, twins,
 whether any plot has a target id); the second (`StreamedRecording.scenarios`) drops the twins,
 places the plots and hands them on `compute.chunk_plots` at a time. Memory then follows a batch
-and a chunk, not the recording's length.
+and a chunk, not the recording's length (the file is read without pyarrow's pre-buffering, which
+would keep every row group read: `io.parquet_file`).
 
 A recording out of order is sorted out of core first (`pipeline.external_sort`), in a temporary
 folder that `read_recording` removes when its block ends, however it ends: one pass in file
@@ -261,7 +262,7 @@ def _check_radars(table: pa.Table, radars: Mapping[int, Radar]) -> None:
 
 def _repeats(path: Path, folder: Path) -> bool:
     """Whether a plot id of the file at `path` occurs twice: the column sorted out of core in `folder`."""
-    with pq.ParquetFile(path) as file:
+    with io.parquet_file(path) as file:
         runs = external_sort.sorted_runs((pa.table({"plot_id": batch.column("plot_id").cast(pa.int64())})
                                           for batch in io.parquet_batches(file, ["plot_id"])), ["plot_id"], folder)
     last = None
@@ -278,7 +279,7 @@ def _batches(path: Path, ordered: bool = True) -> Iterator[pa.Table]:
     column null); raises _NotStreamable at the first batch that is not valid, _OutOfOrder at the
     first that is not in order if `ordered`."""
     try:
-        file = pq.ParquetFile(path)
+        file = io.parquet_file(path)
         names = file.schema_arrow.names
         if any(field.name not in names and field.name not in OPTIONAL_PLOT_COLUMNS for field in PLOT_INPUT_SCHEMA):
             raise _NotStreamable

@@ -58,8 +58,8 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
     flight = noisy_turning_flight(params, np.random.default_rng(21))
     far = moved_east(flight, params, 5000.0)
     plots = tf.plots_of(np.concatenate([flight, far]), np.arange(2 * len(flight)), params.radar)
-    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker))
     estimator = KalmanEstimator(settings)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
     gate = ChiSquareGate(params.tracker.kalman_gate_probability)
     slot = live.start(0)
     estimator.start(live, slot)
@@ -128,9 +128,9 @@ def test_gate_scores_stacked_tracks_as_each_alone(params):
     flights = [noisy_turning_flight(params, rng)[:count] for count in (3, 6, 11)]
     plot = noisy_turning_flight(params, rng)[11]
     features = np.concatenate([*flights, plot[None]])
-    live = LiveTracks(tf.plots_of(features, np.arange(len(features)), params.radar),
-                      ThesisWeights.from_params(params.tracker))
     estimator = KalmanEstimator(settings)
+    live = LiveTracks(tf.plots_of(features, np.arange(len(features)), params.radar),
+                      ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
     gate = ChiSquareGate(params.tracker.kalman_gate_probability)
     first = 0
     for flight in flights:

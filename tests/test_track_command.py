@@ -529,6 +529,22 @@ def in_order(plots: pa.Table, first_plot_id: int = 0) -> pa.Table:
     return with_column(plots, "plot_id", np.arange(first_plot_id, first_plot_id + plots.num_rows))
 
 
+def test_a_file_read_a_batch_at_a_time_holds_a_row_group_not_the_file(tmp_path):
+    """32 row groups of 16 384 random floats (128 KiB each, incompressible, 4 MiB in all) read a
+    row group at a time through `io.parquet_file`: Arrow holds at most a few row groups' bytes at
+    any time (pyarrow's default pre-buffering holds the whole file, 3 MiB by the first batch)."""
+    path = tmp_path / "plots.parquet"
+    rng = np.random.default_rng(5)
+    with pq.ParquetWriter(path, pa.schema([("x", pa.float64())])) as writer:
+        for _ in range(32):
+            writer.write_table(pa.table({"x": rng.normal(size=16384)}))
+    held = []
+    for batch in io.parquet_file(path).iter_batches(batch_size=16384):
+        held.append(pa.total_allocated_bytes())
+        del batch
+    assert len(held) == 32 and max(held) < 8 * 16384 * 8  # under 8 row groups' 1 MiB, a quarter of the file
+
+
 def test_an_in_order_recording_is_streamed_with_the_chunks_of_the_sorting_read(params, tmp_path, monkeypatch):
     """Scenario 7, then 8 (a copy), each in time order, the plot ids increasing in 7 and decreasing
     in 8, and twins of rows 6, 12 and 30 right after them, read 7 rows at a time (runs of one time

@@ -84,7 +84,7 @@ def test_trained_predictor_extrapolates_a_straight_track_within_a_few_hundred_me
                                                          rng.uniform(2000.0, 11000.0)),
                                           (speed * np.sin(heading), speed * np.cos(heading), 0.0), states + 1)
             live = LiveTracks(tf.plots_of(flight, np.arange(states + 1), params.radar),
-                              ThesisWeights.from_params(params.tracker))
+                              ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
             slot = np.array([live.start(0)])
             live.tracks[slot[0]].memory = list(flight[:states])
             assert estimator.state_windows(live, slot, flight[states, 0])[1][0] == 5 - states
@@ -179,6 +179,16 @@ def test_target_in_clutter_keeps_its_own_plots(method, models, params):
     assert confirmed[target_rows].sum() == 27
 
 
+@pytest.mark.parametrize("method", ["via", "ae"])
+def test_network_methods_tracked_in_chunks_give_the_updates_of_tracking_whole(method, models, params):
+    """Chunks of 1 and 7 plots, shorter than the filter network's 10-plot window and the
+    autoencoder's 5: what a track carries into the next chunk (its first plot and the latest its
+    roles read) gives the whole recording's updates bit for bit, on tracks longer than the windows."""
+    tracker = lambda: registry.compose(method, models, params.tracker, WINDOW_M, params.tracker.seed)
+    assert tracker().latest_plots == models.filter.config.input_steps - 1  # the widest window read
+    whole = tf.assert_chunked_as_whole(tf.busy_recording(params.radar), tracker, (1, 7))
+    assert max(map(len, tf.tracks_of(whole).values())) > models.filter.config.input_steps
+
 # ----------------------------------------------------------------------------- 1c: deletion
 
 def live_track(params, weight_steps: int, time: float = 0.0, later: tuple[float, ...] = ()) -> LiveTracks:
@@ -187,7 +197,7 @@ def live_track(params, weight_steps: int, time: float = 0.0, later: tuple[float,
     times = np.array([time] * (weight_steps + 1) + list(later))
     features = np.column_stack([times, np.tile([2.9e6, 1.3e6, 5.5e6, 1.0e5], (len(times), 1))])
     live = LiveTracks(tf.plots_of(features, np.arange(len(times)), params.radar),
-                      ThesisWeights.from_params(params.tracker))
+                      ThesisWeights.from_params(params.tracker), latest_plots=0)
     slot = live.start(0)
     for row in range(1, weight_steps + 1):
         live.associate(slot, row, features[row, 1:4])
@@ -217,7 +227,7 @@ def test_confirmed_track_drops_to_candidate_after_12_s_and_is_deleted_after_24_s
     assert live.manage(112.01) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
     assert live.manage(123.999) == [] and live.weight[live.alive][0] == pytest.approx(0.8)
     removed = live.manage(124.01)
-    assert len(removed) == 1 and len(removed[0].rows) == 4 and len(live) == 0
+    assert [track.track_id for track in removed] == [0] and len(live) == 0
 
 
 def test_two_silence_periods_in_one_call_delete_a_confirmed_track(params):

@@ -20,7 +20,7 @@ from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker import registry
 from pipeline.tracker.models import Models
-from pipeline.tracker.run import Composition, track, track_chunks
+from pipeline.tracker.run import Composition, track
 from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
@@ -35,6 +35,7 @@ class StayingEstimator:
 
     gives_covariance = False
     pairwise = True  # it ignores the time: any (track, plot) pairs
+    latest_plots = 0  # it reads no plot of a track's
 
     def __init__(self) -> None:
         self.made: list[Prediction] = []
@@ -207,7 +208,7 @@ def test_the_prefilter_grid_finds_exactly_the_tracks_a_scan_of_all_finds(distanc
     positions = ORIGIN + rng.uniform(-60000.0, 60000.0, (count, 3))
     positions[:40] = np.round(positions[:40] / 20000.0) * 20000.0  # exactly on cube faces
     features = np.column_stack([tf.T0 + np.arange(count, dtype=float), positions, np.full(count, 1e5)])
-    live = LiveTracks(tf.plots_of(features, np.arange(count), tf.make_params().radar), RULE, capacity=4,
+    live = LiveTracks(tf.plots_of(features, np.arange(count), tf.make_params().radar), RULE, latest_plots=0, capacity=4,
                       cell_m=20000.0)
     for row in range(count):
         if row % 3 == 2 and len(live):  # move a live track onto another plot's position
@@ -224,36 +225,32 @@ def test_the_prefilter_grid_finds_exactly_the_tracks_a_scan_of_all_finds(distanc
     assert len(live) < count  # some tracks were deleted
 
 
-def _busy_recording():
-    """Eight straight flights (some within 3 km of each other) and clutter, 40 scans, with truth."""
-    radar = tf.make_params().radar
-    rng = np.random.default_rng(3)
-    flights = [(tf.straight_features(radar, (20000.0 * k, 60000.0 + 1500.0 * (k % 2), 8000.0),
-                                     (150.0, -100.0 + 25.0 * k, 0.0), 40, t_offset=0.3 * k), np.full(40, k))
-               for k in range(8)]
-    clutter = tf.clutter_features(radar, 40, 30.0, rng, half_width_m=120000.0)
-    features, targets = tf.merge(*flights, (clutter, np.full(len(clutter), NO_TARGET)))
-    return tf.plots_of(features, np.arange(len(features)), radar, targets)
-
-
 @pytest.mark.parametrize("method", ["imm", "kalman_cv_gnn", "oracle"])
 def test_a_recording_tracked_in_chunks_gives_the_updates_of_tracking_it_whole(method):
-    """Chunks of 1, 7 and 100 plots (cutting scans and live tracks): the joined update tables equal
+    """Chunks of 1, 7 and 100 plots (cutting scans and live tracks, and shorter than the tracks: a
+    filter started in a later chunk than its track's first plot): the joined update tables equal
     the whole recording's, bit for bit, for nearest per plot, global nearest per scan and the oracle."""
-    recording = _busy_recording()
     params = tf.make_params()
+    recording = tf.busy_recording(params.radar)
     models = Models(filters=tf.untuned_filters(params))
+    whole = tf.assert_chunked_as_whole(
+        recording, lambda: registry.compose(method, models, params.tracker, 4000.0, [params.tracker.seed]), (1, 7, 100))
+    assert max(map(len, tf.tracks_of(whole).values())) > 7  # tracks outlive a chunk
 
-    def composed():
-        return registry.compose(method, models, params.tracker, 4000.0, [params.tracker.seed])
 
-    whole = track(recording, composed())
-    assert len(set(whole["track_id"].tolist())) < len(recording)  # associations happened
-    for size in (1, 7, 100):
-        chunks = [recording.take(np.arange(start, min(start + size, len(recording))))
-                  for start in range(0, len(recording), size)]
-        tables = list(track_chunks(chunks, composed()))
-        assert len(tables) == len(chunks)
-        for key, column in whole.items():
-            joined = np.concatenate([table[key] for table in tables])
-            assert joined.dtype == column.dtype and joined.tobytes() == column.tobytes(), (size, key)
+def test_a_track_keeps_its_first_plot_and_the_latest_the_roles_read():
+    """A track of 50 plots with `latest_plots` 3 holds the rows of its first plot and its latest 3,
+    and only those are carried into the next part of a recording, renumbered (the new part after them)."""
+    features = np.column_stack([tf.T0 + np.arange(60.0), ORIGIN + np.outer(np.arange(60.0), [100.0, 0.0, 0.0]),
+                                np.full(60, 1e5)])
+    plots = tf.plots_of(features, np.arange(60), tf.make_params().radar)
+    live = LiveTracks(plots.take(np.arange(50)), RULE, latest_plots=3)
+    slot = live.start(0)
+    for row in range(1, 50):
+        live.associate(slot, row, plots.position[row])
+    assert live.tracks[slot].rows == [0, 47, 48, 49] and live.plot_count[slot] == 50
+    assert live.carry(plots.take(np.arange(50, 60))) == 4
+    assert live.tracks[slot].rows == [0, 1, 2, 3]
+    assert live.plots.plot_id.tolist() == [0, 47, 48, 49, *range(50, 60)]
+    with pytest.raises(ValueError, match="latest_plots"):
+        LiveTracks(plots, RULE, latest_plots=-1)

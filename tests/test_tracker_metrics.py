@@ -120,7 +120,8 @@ def test_the_hand_built_weights_are_the_trackers():
     RULE is the default params' rule."""
     params = parse_params(default_params_tree())
     assert ThesisWeights.from_params(params.tracker) == RULE
-    live = LiveTracks(tf.plots_of(np.tile([0.0, 1.0, 2.0, 3.0, 4.0], (4, 1)), np.arange(4), params.radar), RULE)
+    live = LiveTracks(tf.plots_of(np.tile([0.0, 1.0, 2.0, 3.0, 4.0], (4, 1)), np.arange(4), params.radar), RULE,
+                      latest_plots=0)
     slot = live.start(0)
     weights = [live.weight[slot]]
     for row in range(1, 4):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import pyarrow as pa
@@ -307,6 +307,42 @@ def write_recording(folder: Path, plots: pa.Table, radars: pa.Table) -> tuple[Pa
     pq.write_table(plots, folder / "plots.parquet")
     pq.write_table(radars, folder / "radar.parquet")
     return folder / "plots.parquet", folder / "radar.parquet"
+
+
+def busy_recording(radar: Radar) -> Plots:
+    """Eight straight flights of 40 scans (some within 3 km of each other) and clutter, with truth."""
+    rng = np.random.default_rng(3)
+    flights = [(straight_features(radar, (20000.0 * k, 60000.0 + 1500.0 * (k % 2), 8000.0),
+                                  (150.0, -100.0 + 25.0 * k, 0.0), 40, t_offset=0.3 * k), np.full(40, k))
+               for k in range(8)]
+    clutter = clutter_features(radar, 40, 30.0, rng, half_width_m=120000.0)
+    features, targets = merge(*flights, (clutter, np.full(len(clutter), NO_TARGET)))
+    return plots_of(features, np.arange(len(features)), radar, targets)
+
+
+def assert_chunked_as_whole(recording: Plots, composed: Callable[[], Any], sizes: tuple[int, ...]) -> dict:
+    """`track_chunks` over chunks of each of `sizes` plots joins into the update table `track` gives
+    for the whole `recording`, bit for bit, with a fresh tracker (`composed()`) for each run; and so
+    does `track` with tracks that keep all their plots (the estimator told it reads them all), so
+    the plots the roles declare they read (`latest_plots`) are all they read. The whole's table."""
+    from pipeline.tracker.run import track, track_chunks
+    whole = track(recording, composed())
+    every_plot = composed()
+    every_plot.estimator.latest_plots = len(recording)
+    assert every_plot.latest_plots == len(recording)
+    _assert_same_updates(track(recording, every_plot), whole, "every plot kept")
+    for size in sizes:
+        chunks = [recording.take(np.arange(start, min(start + size, len(recording))))
+                  for start in range(0, len(recording), size)]
+        tables = list(track_chunks(chunks, composed()))
+        assert len(tables) == len(chunks)
+        _assert_same_updates({key: np.concatenate([table[key] for table in tables]) for key in whole}, whole, size)
+    return whole
+
+
+def _assert_same_updates(updates: dict[str, np.ndarray], expected: dict[str, np.ndarray], case: object) -> None:
+    for key, column in expected.items():
+        assert updates[key].dtype == column.dtype and updates[key].tobytes() == column.tobytes(), (case, key)
 
 
 def tracks_of(updates: dict[str, np.ndarray]) -> dict[int, list[int]]:

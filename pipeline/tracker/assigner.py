@@ -5,7 +5,8 @@ plot's candidate tracks (pre-filter and gates: `Candidates`) against the tracks 
 batch's first plot, and asks the assigner for a choice per plot (`assign`): the position of
 the chosen candidate in the plot's `Candidates`, or None when the plot starts a track. Plots
 are then updated in time order; a plot whose chosen track was deleted (by management, before
-the plot's time) in the meantime starts a track too.
+the plot's time) in the meantime starts a track too. Of a track's plots an assigner may read its
+first (`rows[0]`), which every track keeps (`pipeline.tracker.tracks`).
 
 - `NearestPerPlot`: each plot alone; the candidate with the lowest normalised error wins.
 - `GlobalNearestPerScan`: each antenna scan of each radar at once (the rotation periods counted

@@ -1,7 +1,11 @@
 """Role: the state estimator (Stone Soup's predictor and updater in one).
 
 An estimator keeps what it needs per live track, by slot of `LiveTracks`, and offers three
-calls. Units: seconds (Unix), ECEF metres, m^2 for covariances.
+calls. Units: seconds (Unix), ECEF metres, m^2 for covariances. It declares in `latest_plots` how
+many of a track's latest plots it reads (`tracks.tracks[slot].rows[-n:]`, n at most that; 0 for
+one that keeps its own state): a track keeps only those and its first plot (`rows[0]`), so
+memory does not grow with a track's age (`pipeline.tracker.tracks`). A track's plot count is
+`tracks.plot_count[slot]`, not the length of its rows.
 
 - `start(tracks, slot)`: a track has just started at its first plot (`tracks.tracks[slot].rows[0]`).
 - `predict(tracks, slots, time)`: where the tracks at `slots` (K,) are expected at `time`, all
@@ -52,6 +56,7 @@ class Prediction(NamedTuple):
 class Estimator(Protocol):
     gives_covariance: bool
     pairwise: bool
+    latest_plots: int
 
     def start(self, tracks: LiveTracks, slot: int) -> None: ...
 

@@ -13,6 +13,8 @@ A gate with `uses_prediction` set is given the estimator's prediction of the can
 plot's time, made once by the loop (and handed to the update as well); the others get None.
 A gate with `pairwise` set also takes `row` as an array (K,), a plot per track: the loop then
 scores the (track, plot) pairs of a whole antenna scan in one call (`pipeline.tracker.run`).
+A gate declares, as an estimator does (`pipeline.tracker.estimator`), how many of a track's latest
+plots it reads in `latest_plots` (the autoencoder's window; 0 for the gates here).
 
 - `RadiusGate` (`radius`, and every method's young tracks): distance from the track's last
   plot, within a constant radius.
@@ -51,6 +53,7 @@ class Scores(NamedTuple):
 class Gate(Protocol):
     uses_prediction: bool
     pairwise: bool
+    latest_plots: int
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None
                  ) -> Scores: ...
@@ -68,6 +71,7 @@ class RadiusGate:
     radius_m: float
     uses_prediction = False
     pairwise = True
+    latest_plots = 0
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         distance = np.linalg.norm(tracks.last_plot[slots] - tracks.plots.position[row], axis=1)
@@ -81,6 +85,7 @@ class WindowGate:
     window_m: float
     uses_prediction = True
     pairwise = True
+    latest_plots = 0
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         distance = np.linalg.norm(prediction.positions - tracks.plots.position[row], axis=1)
@@ -93,6 +98,7 @@ class ChiSquareGate:
 
     uses_prediction = True
     pairwise = True
+    latest_plots = 0
 
     def __init__(self, probability: float) -> None:
         self.threshold = float(chi2.ppf(probability, df=3))
@@ -128,6 +134,7 @@ class AcceptAll:
 
     uses_prediction = False
     pairwise = True
+    latest_plots = 0
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         return Scores(np.zeros(len(slots)), None)

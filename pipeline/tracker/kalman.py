@@ -36,6 +36,7 @@ class KalmanEstimator:
 
     gives_covariance = True
     pairwise = True
+    latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
     def __init__(self, settings: FilterSettings, capacity: int = 64) -> None:
         self.settings = settings

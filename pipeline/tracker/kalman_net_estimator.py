@@ -48,6 +48,7 @@ class KalmanNetEstimator:
 
     gives_covariance = True
     pairwise = False
+    latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
     def __init__(self, model: KalmanNet, capacity: int = 64) -> None:
         self.model, self.spec = model, model.base
@@ -193,6 +194,7 @@ class PlotScaledGate:
 
     uses_prediction = False
     pairwise = False
+    latest_plots = 0
 
     def __init__(self, estimator: KalmanNetEstimator, probability: float) -> None:
         self.estimator, self.chi_square = estimator, ChiSquareGate(probability)

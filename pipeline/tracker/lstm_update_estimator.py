@@ -42,6 +42,7 @@ class LSTMUpdateEstimator:
 
     gives_covariance = True
     pairwise = False
+    latest_plots = 0  # a track's first plot starts its ensemble; the ensemble keeps the rest
 
     def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64) -> None:
         self.model = model.eval()

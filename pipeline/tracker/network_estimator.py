@@ -9,9 +9,11 @@ forward pass. Inputs are built from the tracks' histories as the training window
 - filter: the last 10 plots [t, x, y, z, r] (r the plot's measured range to its radar); the
   last row of its output is the new state.
 
-The networks read and write a range r beside the position, so each track keeps its past
-network states [t, x, y, z, r] in its `memory` (a track's first state is its first plot); the
-track itself shows the loop only the position. The networks give no covariance.
+The networks read and write a range r beside the position, so each track keeps its latest
+network states [t, x, y, z, r] in its `memory` (the predictor's 5; a track's first state is its
+first plot); the track itself shows the loop only the position. Of a track's plots the estimator
+reads the filter's window (its input less the new plot) and the latest one's radar:
+`latest_plots`. The networks give no covariance.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class NetworkEstimator:
         self.filter_plots = self.filter.config.input_steps
         self._predictor_out = output_scaler(self.predictor.scaler)
         self._filter_out = output_scaler(self.filter.scaler)
+        self.latest_plots = max(self.filter_plots - 1, 1)
 
     def start(self, tracks: LiveTracks, slot: int) -> None:
         track = tracks.tracks[slot]
@@ -82,7 +85,7 @@ class NetworkEstimator:
         predicted state and the plot (position and range), the predictor running here when the
         gate made no prediction (the young-track radius)."""
         track, plot = tracks.tracks[slot], tracks.plots.features[row]
-        if len(track.rows) + 1 < self.filter_plots:
+        if tracks.plot_count[slot] + 1 < self.filter_plots:
             if prediction is None:
                 prediction, index = self.predict(tracks, np.array([slot]), plot[0]), 0
             state = 0.5 * (prediction.state[index] + plot)
@@ -95,4 +98,5 @@ class NetworkEstimator:
             state = self._filter_out.inverse(outputs, origin)[0, -1]
             state[0] = plot[0]
         track.memory.append(state)
+        del track.memory[:-self.inputs]
         return state[1:4], None

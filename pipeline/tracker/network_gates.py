@@ -8,6 +8,8 @@
   autoencoder; the error is the sum of absolute differences, within the calibrated threshold.
 
 Neither uses the loop's shared prediction: MIA predicts its own samples, AE predicts nothing.
+Each declares the latest plots of a track it reads (`latest_plots`, `pipeline.tracker.gate`):
+MIA the latest one (its radar, through the estimator's state windows), AE its window.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ class MonteCarloGate:
 
     uses_prediction = False
     pairwise = False
+    latest_plots = 1
 
     def __init__(self, estimator: NetworkEstimator, params: TrackerParams, rng: np.random.Generator) -> None:
         self.estimator, self.params, self.rng = estimator, params, rng
@@ -69,11 +72,11 @@ class AutoencoderGate:
         if "threshold" not in autoencoder.extras:
             raise ValueError("the autoencoder model has no calibrated threshold; retrain it with train_autoencoder")
         self.model, self.run, self.threshold = autoencoder, runnable, float(autoencoder.extras["threshold"])
-        self.history = autoencoder.config.input_steps - 1
+        self.latest_plots = autoencoder.config.input_steps - 1  # the plots before the candidate
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
         features = tracks.plots.features
-        rows = np.array([[*tracks.tracks[slot].rows[-self.history:], row] for slot in slots])
+        rows = np.array([[*tracks.tracks[slot].rows[-self.latest_plots:], row] for slot in slots])
         windows = features[rows]
         origin = self.model.scaler.origin(windows, tracks.plots.radar_position[rows[:, 0]])
         scaled = self.model.scaler.transform(windows, origin)

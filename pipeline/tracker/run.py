@@ -78,6 +78,12 @@ class Composition:
         candidates near the plot (with every track a candidate, every plot would be scored again)."""
         return self.pairwise and math.isfinite(self.prefilter_m)
 
+    @property
+    def latest_plots(self) -> int:
+        """How many of a track's latest plots its rows keep beside its first: the most any role
+        reads (the assigners read only the first, the oracle its target)."""
+        return max(self.estimator.latest_plots, self.gate.latest_plots, self.young_gate.latest_plots)
+
 
 def track(plots: Plots, tracker: Composition) -> dict[str, np.ndarray]:
     """Track `plots` (time order, one scenario) with `tracker`: one row per track update, a track's
@@ -90,16 +96,18 @@ def track_chunks(chunks: Iterable[Plots], tracker: Composition) -> Iterator[dict
     """Track plots given as consecutive chunks of one scenario in time order (as a recording is read
     a part at a time), with `tracker`: the update table of each chunk in turn, as `track` would give
     for all the chunks joined, row for row. Memory follows the chunk and the live tracks, not the
-    recording: a chunk's plot table is the plots of the live tracks (renumbered,
-    `LiveTracks.carry`) followed by the chunk's, and the assigner's last batch of a chunk, which
-    the chunk's end may cut, waits for the next chunk (its updates come in the next table)."""
+    recording: a chunk's plot table is the plots the live tracks keep (each its first and its
+    `latest_plots` latest, renumbered: `LiveTracks.carry`) followed by the chunk's, the updates are
+    handed on chunk by chunk, and the assigner's last batch of a chunk, which the chunk's end may
+    cut, waits for the next chunk (its updates come in the next table)."""
     chunks = iter(chunks)
     chunk, live, waiting = next(chunks, None), None, None
     while chunk is not None:
         following = next(chunks, None)
         todo = chunk if waiting is None else plot_table.joined([waiting, chunk])
         if live is None:
-            live, first = LiveTracks(todo, tracker.management, cell_m=tracker.prefilter_m), 0
+            live, first = LiveTracks(todo, tracker.management, latest_plots=tracker.latest_plots,
+                                     cell_m=tracker.prefilter_m), 0
         else:
             first = live.carry(todo)
         bounds = tracker.assigner.batches(todo)

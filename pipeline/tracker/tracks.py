@@ -17,7 +17,11 @@ per plot follows the tracks near it, not all live tracks (issue 16: 1000 aircraf
 The state a track shows the loop is its position (ECEF metres) after its last update; what an
 estimator keeps beyond that (a filter's velocity and covariance, a network's past states) the
 estimator keeps, by slot. A track's history is the rows of its plots in the plot table being
-tracked.
+tracked, and only as much of it as the roles read: its first plot's row (an estimator starts its
+filter from it, the oracle reads its target) and its `latest_plots` latest (a network's input
+window), so a track that lives for hours holds, and carries from one part of a recording to the
+next, a few rows rather than all its plots (issue 16, item 4: memory independent of the
+recording's length).
 
 A track falls due for lowering at its last association plus the management rule's silence; it
 is lowered only when a plot comes later than that by more than TIME_QUANTUM_S. A plot arriving
@@ -47,8 +51,11 @@ _AXIS = 1 << 32           # a cube's key packs its three indices, each offset by
 
 @dataclass
 class Track:
-    """One track: its id (unique within a run), the rows of its plots in the plot table, in
-    association order, and `memory`, what its estimator keeps per track (if it keeps it here)."""
+    """One track: its id (unique within a run), `rows`, the row of its first plot in the plot table
+    followed by the rows of its latest plots (at most `LiveTracks.latest_plots` of them) in
+    association order, and `memory`, what its estimator keeps per track (if it keeps it here).
+    `rows[-n:]` are its latest n plots for any n up to `latest_plots`; its plot count is
+    `LiveTracks.plot_count`."""
 
     track_id: int
     rows: list[int] = field(default_factory=list)
@@ -68,11 +75,15 @@ class LiveTracks:
     Arrays by slot: `position` (S, 3) the last estimated position, `last_plot` (S, 3) the last
     plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,); `tracks` the Track of each
     slot (None when free). S grows by doubling when every slot is taken. `cell_m`: the grid's cube
-    edge (m); `near` is exact for any distance and fastest for distances up to it."""
+    edge (m); `near` is exact for any distance and fastest for distances up to it. `latest_plots`:
+    how many of a track's latest plots its `rows` keep beside its first (what the roles read,
+    `pipeline.tracker.run.Composition.latest_plots`). Raises ValueError if it is negative."""
 
-    def __init__(self, plots: Plots, management: TrackManagement, capacity: int = 64,
+    def __init__(self, plots: Plots, management: TrackManagement, *, latest_plots: int, capacity: int = 64,
                  cell_m: float = DEFAULT_CELL_M) -> None:
-        self.plots, self.management, self.cell_m = plots, management, cell_m
+        if latest_plots < 0:
+            raise ValueError(f"latest_plots must be at least 0, got {latest_plots}")
+        self.plots, self.management, self.cell_m, self.latest_plots = plots, management, cell_m, latest_plots
         self.tracks: list[Track | None] = [None] * capacity
         self.position = np.full((capacity, 3), np.inf)
         self.last_plot = np.full((capacity, 3), np.inf)
@@ -151,9 +162,9 @@ class LiveTracks:
 
     def carry(self, plots: Plots) -> int:
         """Move on to the next part of a recording read a part at a time: the plot table becomes
-        the live tracks' plots (in their order) followed by `plots`, and every live track's rows
-        are renumbered into it. Returns the row of `plots`' first plot. Raises ValueError if a
-        live track holds no plot (it always holds its first)."""
+        the plots the live tracks keep (their first and `latest_plots` latest, in table order)
+        followed by `plots`, and every live track's rows are renumbered into it. Returns the row of
+        `plots`' first plot: at most (latest_plots + 1) rows per live track come before it."""
         live = [track for track in self.tracks if track is not None]
         kept = np.unique(np.concatenate([np.asarray(track.rows, dtype=np.int64) for track in live])) if live \
             else np.empty(0, dtype=np.int64)
@@ -183,9 +194,14 @@ class LiveTracks:
         heapq.heappush(self._due, (due, slot, self._generation[slot]))
 
     def associate(self, slot: int, row: int, position: np.ndarray) -> None:
-        """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight."""
+        """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight. The
+        track's rows keep its first and its `latest_plots` latest: the one that falls out of the
+        latest is dropped."""
         self.changed.add(slot)
-        self.tracks[slot].rows.append(row)
+        rows = self.tracks[slot].rows
+        rows.append(row)
+        if len(rows) > self.latest_plots + 1:
+            del rows[1]
         self.position[slot] = position
         self._place(slot)
         self.last_plot[slot] = self.plots.position[row]
