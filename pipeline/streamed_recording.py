@@ -53,7 +53,6 @@ from typing import Protocol
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from pipeline import external_sort, input_checks, io, plot_table
 from pipeline.params import Radar

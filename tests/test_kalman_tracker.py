@@ -98,9 +98,9 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
 
 def one_track(params, settings, flight: np.ndarray) -> tuple[LiveTracks, KalmanEstimator, int]:
     """The plots of `flight` tracked by `settings`' filter: one track started at the first, its slot."""
-    live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
-                      ThesisWeights.from_params(params.tracker))
     estimator = KalmanEstimator(settings)
+    live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
+                      ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
     slot = live.start(0)
     estimator.start(live, slot)
     return live, estimator, slot
