@@ -120,7 +120,8 @@ def test_plots_carry_their_aircraft_and_clutter_spans_the_scene(params, generate
 
 @pytest.mark.parametrize("changes, message", [
     ({"scenes.aircraft": 7}, r"scenes.aircraft = 7: a scene needs at least 8"),
-    ({"scenes.separation_m": 200000.0}, r"scenes.aircraft = 20: more than the 9 that fit the coverage box"),
+    ({"scenes.aircraft": 20, "scenes.separation_m": 200000.0},
+     r"scenes.aircraft = 20: more than the 9 that fit the coverage box"),
     ({"scenes.formation_spacing_m": [300.0, 3000.0]},
      r"scenes.formation_spacing_m = \[300.0, 3000.0\]: the closest formation, 300 m apart, is within the radar's "
      r"resolution, 349 m at 250000 m"),
