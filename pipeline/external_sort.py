@@ -48,20 +48,24 @@ def sorted_runs(tables: Iterable[pa.Table], keys: Sequence[str], folder: Path) -
     """`tables` (one schema) cut into runs of RUN_ROWS rows in arrival order, each sorted by `keys`
     (stable) and written to `folder` (created): the runs' paths, in arrival order."""
     folder.mkdir(parents=True, exist_ok=True)
-    runs: list[Path] = []
+    return [_sorted_run(table, keys, folder / f"run-{number}.parquet")
+            for number, table in enumerate(_rebatched(tables, RUN_ROWS))]
+
+
+def _rebatched(tables: Iterable[pa.Table], rows: int) -> Iterator[pa.Table]:
+    """The rows of `tables` (one schema), in order, as tables of `rows` rows (the last may have fewer)."""
     held: list[pa.Table] = []
-    rows = 0
+    count = 0
     for table in tables:
         while table.num_rows:
-            taken = min(RUN_ROWS - rows, table.num_rows)
+            taken = min(rows - count, table.num_rows)
             held.append(table.slice(0, taken))
-            rows, table = rows + taken, table.slice(taken)
-            if rows == RUN_ROWS:
-                runs.append(_sorted_run(pa.concat_tables(held), keys, folder / f"run-{len(runs)}.parquet"))
-                held, rows = [], 0
-    if rows:
-        runs.append(_sorted_run(pa.concat_tables(held), keys, folder / f"run-{len(runs)}.parquet"))
-    return runs
+            count, table = count + taken, table.slice(taken)
+            if count == rows:
+                yield pa.concat_tables(held)
+                held, count = [], 0
+    if count:
+        yield pa.concat_tables(held)
 
 
 def _sorted_run(table: pa.Table, keys: Sequence[str], path: Path) -> Path:
@@ -77,16 +81,8 @@ def written(tables: Iterable[pa.Table], schema: pa.Schema, path: Path) -> Path:
     """`tables` (in `schema`) written one after the other to `path`, in row groups of
     MERGE_BATCH_ROWS rows (what a merge reads of a run at a time)."""
     with pq.ParquetWriter(path, schema, **COMPRESSION) as writer:
-        held: list[pa.Table] = []
-        rows = 0
-        for table in tables:
-            held.append(table)
-            rows += table.num_rows
-            if rows >= MERGE_BATCH_ROWS:
-                writer.write_table(pa.concat_tables(held), row_group_size=MERGE_BATCH_ROWS)
-                held, rows = [], 0
-        if held:
-            writer.write_table(pa.concat_tables(held), row_group_size=MERGE_BATCH_ROWS)
+        for table in _rebatched(tables, MERGE_BATCH_ROWS):
+            writer.write_table(table, row_group_size=MERGE_BATCH_ROWS)
     return path
 
 

@@ -106,10 +106,8 @@ class GlobalNearestPerScan:
         # millions of cells, and every pass over it costs more than the pairs.
         cost = np.full((len(candidates), len(slots)), UNASSIGNABLE)
         cost[plots[gated], columns[gated]] = errors[gated]
-        finite = np.zeros(cost.shape, dtype=bool)
-        finite[plots[gated], columns[gated]] = True
         chosen_plots, chosen_columns = linear_sum_assignment(cost)
-        kept = finite[chosen_plots, chosen_columns]
+        kept = cost[chosen_plots, chosen_columns] < UNASSIGNABLE  # a gated pair's error is at most 1
         chosen_plots, chosen_columns = chosen_plots[kept], chosen_columns[kept]
         # A pair's place in the list of pairs (plot by plot, tracks in order: its key plot * tracks + column
         # increases along it), less its plot's first, is the track's place among the plot's candidates.

@@ -209,11 +209,16 @@ def _take(live: LiveTracks, row: int, c: Candidates, choice: tuple[int, int, int
     if row in ahead:
         position, covariance = ahead[row]
     else:
-        prediction, index = (c.prediction, c.first + np.count_nonzero(c.mature[:at])) if mature else (None, 0)
+        prediction, index = (c.prediction, _prediction_row(c, at)) if mature else (None, 0)
         position, covariance = estimator.update(live, slot, row, prediction, index)
     live.associate(slot, row, position)
     updates.add(track_id, row, position, live.weight[slot], tracker.label if mature else tracker.young_label,
                 float(c.errors[at]), covariance)
+
+
+def _prediction_row(c: Candidates, at: int) -> int:
+    """The row of `c.prediction` that holds candidate `at` (a mature one: only those are predicted)."""
+    return c.first + int(np.count_nonzero(c.mature[:at]))
 
 
 def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], chosen: list[tuple | None],
@@ -224,7 +229,7 @@ def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], 
     chosen track that management deletes before its plot's turn got its filter updated for
     nothing: the plot starts a track instead, and `start` resets the slot's filter. A track chosen
     by two plots (an assigner that allows it) is left to the plot-by-plot updates."""
-    picked = [(row, choice[0], c.first + np.count_nonzero(c.mature[:choice[2]]), c.prediction)
+    picked = [(row, choice[0], _prediction_row(c, choice[2]), c.prediction)
               for row, c, choice in zip(rows, candidates, chosen) if choice is not None and c.mature[choice[2]]]
     slots = np.array([slot for _, slot, _, _ in picked], dtype=np.int64)
     if not picked or len(np.unique(slots)) < len(slots):
