@@ -254,6 +254,8 @@ class TrackerParams:
     opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
     mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
     lstm_update_gate_m: float  # the LSTM update's chi-square gate never beyond this of the prediction (issue 18)
+    young_window_fallback: bool  # lstm_update's young tracks also take what RadiusGate(window_m) takes (issue 27)
+    refusal_warning_share: float  # `track` warns when a learned gate refused this share of the plots in the window
 
 
 @dataclass(frozen=True)
@@ -943,6 +945,8 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         opportunity_s=radar.scan_period_s,
         mature_first=_boolean(tree, "mature_first", p),
         lstm_update_gate_m=_positive(tree, "lstm_update_gate_m", p),
+        young_window_fallback=_boolean(tree, "young_window_fallback", p),
+        refusal_warning_share=_number(tree, "refusal_warning_share", p, 0.0, 1.0, low_open=True),
     )
     if tracker.confirm_m > tracker.confirm_n:
         raise ParamError(f"{p}.confirm_m = {tracker.confirm_m}: must not exceed confirm_n = {tracker.confirm_n}")

@@ -32,6 +32,7 @@ from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.refusals import RefusalCounts, warn_refusals
 from pipeline.tracker.run import track_chunks
 from pipeline.tracker.updates import positions
 
@@ -74,18 +75,24 @@ def recording_tracker_params(tracker: TrackerParams, radars: Mapping[int, Radar]
 
 def track_recording(plots: Plots, method: str, window_m: float, params: Params, models_dir: Path) -> pa.Table:
     """Track every scenario of a recording with `method`; one row per track update (TRACK_SCHEMA),
-    `range_m` the range from the plot's radar to the track's position."""
+    `range_m` the range from the plot's radar to the track's position. Warns as `track` does when the
+    method's learned gate keeps refusing plots (`refusals.warn_refusals`)."""
+    refusals = RefusalCounts()
     parts = [part for _, part, _ in tracked_parts(((scenario_id, iter([scenario]))
                                                    for scenario_id, scenario in plots.scenarios()),
-                                                  plots.radars, method, window_m, params, models_dir)]
+                                                  plots.radars, method, window_m, params, models_dir, refusals)]
+    warn_refusals(method, window_m, refusals, params.tracker.refusal_warning_share)
     return pa.concat_tables(parts) if parts else TRACK_SCHEMA.empty_table()
 
 
 def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapping[int, Radar], method: str,
-                  window_m: float, params: Params, models_dir: Path) -> Iterator[tuple[int, pa.Table, bool]]:
+                  window_m: float, params: Params, models_dir: Path, refusals: RefusalCounts
+                  ) -> Iterator[tuple[int, pa.Table, bool]]:
     """Track each scenario, given as its plots in time-ordered chunks, with `method`: the track
     updates (TRACK_SCHEMA) of each chunk in turn, with its scenario id and whether it is the
-    scenario's first. `radars`: every radar of the recording."""
+    scenario's first. `radars`: every radar of the recording. Each scenario's counts of plots its
+    learned gate refused (`pipeline.tracker.refusals`; none for a method without one) are added to
+    `refusals` once the scenario is tracked."""
     models = load_models(models_dir, params, [method])
     tracker_params = recording_tracker_params(params.tracker, radars)
     management = registry.management(tracker_params.management, tracker_params)
@@ -95,6 +102,8 @@ def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapp
         tracker = registry.compose(method, models, tracker_params, window_m, seed)
         for number, updates in enumerate(track_chunks(chunks, tracker)):
             yield scenario_id, _track_table(updates, scenario_id, sites, management), number == 0
+        if tracker.refusals is not None:
+            refusals.add(tracker.refusals.counts)
 
 
 def _track_table(updates: dict[str, np.ndarray], scenario_id: int, sites: Mapping[int, np.ndarray],
@@ -125,7 +134,8 @@ def summary_path(out: Path) -> Path:
 class RunSummary:
     """What a user checks first after `track`, gathered as the track updates are written: the plots
     tracked, the records or plots left out by reason (`Plots.skipped`), the confirmed tracks, and
-    per radar its plots and the confirmed tracks it fed. A track is one (scenario, track id): each
+    per radar its plots and the confirmed tracks it fed, and the plots a learned gate refused that the
+    window would have taken (`refusals`, `pipeline.tracker.refusals`). A track is one (scenario, track id): each
     scenario's radars are tracked together, so a track may hold plots of several radars; it counts
     once in the total and once for each radar whose plots updated it while confirmed. Holds the
     confirmed tracks' keys, not the updates."""
@@ -133,6 +143,7 @@ class RunSummary:
     def __init__(self, plots: int, plot_counts: Mapping[int, int], skipped: Mapping[str, int]) -> None:
         self.plots, self.plot_counts, self.skipped = plots, plot_counts, skipped
         self.updates = 0
+        self.refusals = RefusalCounts()
         self.confirmed: dict[int, set[tuple[int, int]]] = {radar_id: set() for radar_id in plot_counts}
 
     def add(self, tracks: pa.Table) -> None:
@@ -150,7 +161,8 @@ class RunSummary:
                   for r in sorted(self.plot_counts)}
         return {"plots_tracked": self.plots, "skipped": dict(sorted(self.skipped.items())),
                 "plots_skipped": int(sum(self.skipped.values())), "track_updates": self.updates,
-                "confirmed_tracks": len(set().union(*self.confirmed.values())), "radars": radars}
+                "confirmed_tracks": len(set().union(*self.confirmed.values())), "radars": radars,
+                "learned_gate": {"plots_in_window": self.refusals.in_window, "plots_refused": self.refusals.refused}}
 
 
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
@@ -194,11 +206,12 @@ def _write_tracks(recording: streamed_recording.RecordingParts, method: str, win
         log.warning("track: no plots to track in %s: the output will hold no track update", source)
     with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
-                                             window_m, params, models_dir):
+                                             window_m, params, models_dir, summary.refusals):
             written.add(part, new_chunk=first)
             summary.add(part)
         report = summary.report()
         io.write_json(report, summary_path(out))
+    warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
     skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
     log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on %d radars -> %s, summary %s",
              len(recording), f"skipped {skipped}" if skipped else "none skipped", report["track_updates"],

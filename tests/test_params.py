@@ -70,6 +70,10 @@ def test_default_params_load():
     ("tracker.confirm_n", 0, ["tracker.confirm_n", "0"]),
     ("tracker.confirm_n", 53, ["tracker.confirm_n = 53", "at most 52"]),
     ("tracker.delete_after_s", 0.0, ["tracker.delete_after_s", "0.0"]),
+    # learned gates (issue 27): a switch, and a share of the plots in the window
+    ("tracker.young_window_fallback", "yes", ["tracker.young_window_fallback = 'yes'", "true or false"]),
+    ("tracker.refusal_warning_share", 0.0, ["tracker.refusal_warning_share = 0.0", "(0.0, 1.0]"]),
+    ("tracker.refusal_warning_share", 1.5, ["tracker.refusal_warning_share = 1.5", "(0.0, 1.0]"]),
     # GOSPA: a positive cutoff, and an order for which it is a metric
     ("evaluate.gospa_cutoff_m", 0.0, ["evaluate.gospa_cutoff_m", "0.0"]),
     ("evaluate.gospa_order", 0.5, ["evaluate.gospa_order = 0.5", "[1.0, inf]"]),

@@ -731,3 +731,58 @@ def test_the_numeric_reader_gives_read_parquets_table_and_errors_across_batches(
         io.read_numeric_parquet(*arguments)
     assert str(got.value) == str(expected.value)
     assert {"type": "'high'", "overflow": str(2**40)}.get(change, "") in str(got.value)
+
+
+def slow_trained_lstm_update(models: Path) -> Path:
+    """models/lstm_update.pt: an LSTM update (untrained: the alpha-beta filter it starts as, alpha = beta =
+    0.5, MC dropout 0.3 over 8 copies) whose young tracks' copies start at velocities of 150 m/s spread,
+    as a model trained on targets up to about 450 m/s (3 sigma) carries."""
+    from pipeline import kalman_net
+    from pipeline.lstm_update import LSTMUpdate, LSTMUpdateConfig
+    config = LSTMUpdateConfig(hidden=8, dropout=0.3, mc_samples=8, detach_prediction=True, position_scale_m=1000.0,
+                              velocity_scale_mps=400.0, acceleration_scale_mps2=10.0, time_scale_s=6.0,
+                              initial_alpha=0.5, initial_beta=0.5, floor_m=1.0, start_velocity_std_mps=150.0,
+                              calibration_ages=4, calibration_gaps=3)
+    models.mkdir(parents=True, exist_ok=True)
+    kalman_net.save(LSTMUpdate(config), models / "lstm_update.pt")
+    return models
+
+
+@pytest.mark.parametrize("fallback", [False, True])
+def test_lstm_update_warns_when_its_gate_refuses_a_fast_target_and_the_window_fallback_tracks_it(
+        params, tmp_path, caplog, fallback):
+    """Case 29's kind: a straight level target at 600 m/s (Mach 1.8) 100 km from the radar, 20 scans. The
+    LSTM update's young-track gate, its copies' start velocities those of slower targets, refuses every
+    second plot: 20 tracks of one plot, none confirmed; the summary counts 19 of the 19 plots within
+    window_m of a track refused, and `track` warns naming the method and the count. With
+    `tracker.young_window_fallback` the young track takes the second plot by the window, the learned
+    gate the rest: one track, confirmed from its fourth plot, nothing refused, no warning."""
+    features = tf.straight_features(params.radar, (0.0, 100e3, 11000.0), (600.0, 0.0, 0.0), 20)
+    plots = tf.measurement_table(features, np.arange(len(features)), params.radar, 1)
+    models = slow_trained_lstm_update(tmp_path / "models")
+    with caplog.at_level("WARNING", logger="pipeline"):
+        assert track_command(tmp_path, models, "lstm_update", plots, tf.radar_table(1, params.radar),
+                             {"tracker.young_window_fallback": fallback}) == 0
+    tracks = pq.read_table(tmp_path / "tracks.parquet").to_pydict()
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    warned = "track: method lstm_update: its learned gate refused 19 of the 19 plots (100.0 %) that lay within " \
+             "window_m = 4000 m of a track it scored"
+    if fallback:
+        assert tracks["track_id"] == [0] * 20 and tracks["status"][3:] == ["confirmed"] * 17
+        assert summary["learned_gate"] == {"plots_in_window": 19, "plots_refused": 0}
+        assert summary["confirmed_tracks"] == 1 and "learned gate refused" not in caplog.text
+    else:
+        assert tracks["track_id"] == list(range(20)) and "confirmed" not in tracks["status"]
+        assert summary["learned_gate"] == {"plots_in_window": 19, "plots_refused": 19}
+        assert summary["confirmed_tracks"] == 0 and warned in caplog.text
+
+
+def test_a_method_without_a_learned_gate_counts_nothing_refused(params, tmp_path, filters_only):
+    """The same fast target under the IMM (a tuned filter's chi-square gate, nothing learned): one
+    confirmed track, and the summary's learned-gate counts are zero."""
+    features = tf.straight_features(params.radar, (0.0, 100e3, 11000.0), (600.0, 0.0, 0.0), 20)
+    plots = tf.measurement_table(features, np.arange(len(features)), params.radar, 1)
+    assert track_command(tmp_path, filters_only, "imm", plots, tf.radar_table(1, params.radar)) == 0
+    summary = json.loads((tmp_path / "tracks.summary.json").read_text())
+    assert summary["confirmed_tracks"] == 1
+    assert summary["learned_gate"] == {"plots_in_window": 0, "plots_refused": 0}

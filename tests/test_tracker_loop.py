@@ -1,6 +1,7 @@
 """The tracking loop (`pipeline.tracker.run`) with stub components, no trained networks: start,
 confirmation and deletion by the thesis's weights, one shared prediction per plot, global nearest
-neighbour over a scan, and the oracle's true association.
+neighbour over a scan, the oracle's true association, and the count of plots a learned gate
+refused that the window would have taken (`pipeline.tracker.refusals`).
 
 Plots lie on a line through a point near the radar (ECEF x axis offsets), so distances are plain
 to read; the stub estimator takes each plot as the track's new position and predicts that a track
@@ -16,11 +17,12 @@ from pipeline import io
 from pipeline.plot_table import NO_TARGET
 from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, TrueAssociation
 from pipeline.tracker.estimator import Prediction
-from pipeline.tracker.gate import AcceptAll, RadiusGate, WindowGate
+from pipeline.tracker.gate import AcceptAll, RadiusFloorGate, RadiusGate, Scores, WindowGate
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker import registry
 from pipeline.tracker.models import Models
-from pipeline.tracker.run import Composition, track
+from pipeline.tracker.refusals import RefusalCounts, RefusalWatch, warn_refusals
+from pipeline.tracker.run import Composition, track, track_chunks
 from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
 
@@ -69,10 +71,27 @@ class RecordingGate(WindowGate):
         return super().__call__(tracks, slots, row, prediction)
 
 
+class FixedGate:
+    """A stub learned gate: the same errors for every call, one per candidate in slot order (inf
+    everywhere by default: it refuses every plot, as the LSTM update's gate a target faster than its
+    training, issue 27)."""
+
+    uses_prediction = False
+    pairwise = True
+    latest_plots = 0
+
+    def __init__(self, errors: list[float] | None = None) -> None:
+        self.errors = errors
+
+    def __call__(self, tracks, slots, row, prediction):
+        return Scores(np.full(len(slots), np.inf) if self.errors is None else np.array(self.errors), None)
+
+
 def composition(estimator=None, gate=None, assigner=None, mature_from: int = 2, prefilter_m: float = 20000.0,
-                mature_first: bool = False) -> Composition:
-    return Composition("stub", estimator or StayingEstimator(), gate or WindowGate(WINDOW_M), RadiusGate(WINDOW_M),
-                       "radius", mature_from, prefilter_m, assigner or NearestPerPlot(), RULE, mature_first)
+                mature_first: bool = False, young_gate=None, refusals: RefusalWatch | None = None) -> Composition:
+    return Composition("stub", estimator or StayingEstimator(), gate or WindowGate(WINDOW_M),
+                       young_gate or RadiusGate(WINDOW_M), "radius", mature_from, prefilter_m,
+                       assigner or NearestPerPlot(), RULE, mature_first, refusals)
 
 
 def plots(times: list[float], offsets_m: list[float], targets: list[int] | None = None):
@@ -254,3 +273,73 @@ def test_a_track_keeps_its_first_plot_and_the_latest_the_roles_read():
     assert live.plots.plot_id.tolist() == [0, 47, 48, 49, *range(50, 60)]
     with pytest.raises(ValueError, match="latest_plots"):
         LiveTracks(plots, RULE, latest_plots=-1)
+
+
+FAST_TIMES, FAST_OFFSETS = [0, 6, 12, 15, 18, 24, 30], [0, 1500, 3000, -12000, 4500, 6000, 7500]  # a target
+# 1500 m a scan (3/4 of the window), and at 15 s a clutter plot 12 km off: within the pre-filter, not the window
+
+
+@pytest.mark.parametrize("young_learned, counted", [(True, (5, 5)), (False, (0, 0))])
+def test_a_learned_gate_refusing_every_plot_leaves_each_its_own_track_and_is_counted(young_learned, counted):
+    """A young-track gate that refuses every plot (lstm_update's on a target faster than its training):
+    the target's 6 plots and the clutter plot each start a track, none confirmed. With the gate
+    declared learned, the 5 target plots after the first lay within the window of the track the
+    previous one started and are counted, all refused; the clutter plot, 12 km off, is not. A plain
+    gate's refusals (declared not learned) are not counted."""
+    watch = RefusalWatch(WINDOW_M, young=young_learned, mature=True)
+    updates = track(plots(FAST_TIMES, FAST_OFFSETS), composition(young_gate=FixedGate(), gate=FixedGate(),
+                                                                 refusals=watch))
+    assert updates["track_id"].tolist() == [0, 1, 2, 3, 4, 5, 6]
+    assert not RULE.confirmed(updates["weight"]).any()
+    assert (watch.counts.in_window, watch.counts.refused) == counted
+
+
+def test_young_tracks_floored_by_the_radius_take_what_the_window_takes():
+    """The same target with the refusing gate floored by the window (`RadiusFloorGate`, lstm_update's
+    young gate under `tracker.young_window_fallback`): the second plot joins by the radius, error
+    (1500 / 2000)^2 on the chi-square's scale; the mature window gate takes the rest (error 0.75), one
+    track confirmed at its fourth plot; the clutter plot starts its own; nothing counted refused."""
+    watch = RefusalWatch(WINDOW_M, young=True, mature=True)
+    updates = track(plots(FAST_TIMES, FAST_OFFSETS), composition(young_gate=RadiusFloorGate(FixedGate(), WINDOW_M),
+                                                                 refusals=watch))
+    assert updates["track_id"].tolist() == [0, 0, 0, 1, 0, 0, 0]
+    assert updates["association"].tolist() == ["start", "radius", "stub", "start", "stub", "stub", "stub"]
+    np.testing.assert_allclose(updates["association_error"][[1, 2, 4, 5, 6]], [0.5625, 0.75, 0.75, 0.75, 0.75])
+    assert [RULE.status(w) for w in updates["weight"][[0, 1, 2, 4]]] == ["tentative", "tentative", "candidate",
+                                                                         "confirmed"]
+    assert (watch.counts.in_window, watch.counts.refused) == (5, 0)
+
+
+def test_the_radius_floor_keeps_the_smaller_error_and_refuses_only_what_both_refuse():
+    """Three one-plot tracks 1000, 1000 and 2500 m from a plot, the learned gate's errors 0.1, inf, inf:
+    the floored errors are 0.1 (the learned gate's, below the radius's 0.25), 0.25 ((1000 / 2000)^2,
+    the radius alone) and inf (outside both)."""
+    table = plots([0, 0, 0, 6], [0, 2000, 3500, 1000])
+    live = LiveTracks(table, RULE, latest_plots=0)
+    slots = np.array([live.start(row) for row in range(3)])
+    scores = RadiusFloorGate(FixedGate([0.1, np.inf, np.inf]), WINDOW_M)(live, slots, 3, None)
+    np.testing.assert_allclose(scores.errors, [0.1, 0.25, np.inf])
+
+
+def test_refusals_counted_in_chunks_are_those_of_the_whole_recording():
+    """The counts follow the plots, not the chunks a recording is read in: one plot a chunk counts
+    what the whole does."""
+    recording = plots(FAST_TIMES, FAST_OFFSETS)
+    counts = []
+    for size in (1, len(recording)):
+        watch = RefusalWatch(WINDOW_M, young=True, mature=True)
+        chunks = [recording.take(np.arange(k, min(k + size, len(recording)))) for k in range(0, len(recording), size)]
+        list(track_chunks(chunks, composition(young_gate=FixedGate(), gate=FixedGate(), refusals=watch)))
+        counts.append(watch.counts)
+    assert counts[0] == counts[1] == RefusalCounts(in_window=5, refused=5)
+
+
+@pytest.mark.parametrize("refused, warned", [(0, False), (1, False), (2, True)])
+def test_the_warning_names_the_method_once_the_refused_share_is_reached(caplog, refused, warned):
+    """A share of 0.5: 2 of 4 plots in the window refused warn, naming the method and the count; 1 of 4
+    (the odd clutter plot near a track) does not, nor does none."""
+    with caplog.at_level("WARNING", logger="pipeline"):
+        warn_refusals("kalman_net", 4000.0, RefusalCounts(in_window=4, refused=refused), 0.5)
+    assert ("track: method kalman_net: its learned gate refused 2 of the 4 plots (50.0 %) that lay within "
+            "window_m = 4000 m" in caplog.text) == warned
+    assert len(caplog.records) == warned

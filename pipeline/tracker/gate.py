@@ -25,6 +25,9 @@ plots it reads in `latest_plots` (the autoencoder's window; 0 for the gates here
   the validation gate of Bar-Shalom, Li and Kirubarajan, "Estimation with Applications to
   Tracking and Navigation", 2001, section 5.4.2); the error is d^2 / quantile.
 - `AcceptAll` (the oracle, whose assigner uses the truth): every track, error 0.
+- `RadiusFloorGate` (`lstm_update`'s young tracks under `tracker.young_window_fallback`, issue 27):
+  a learned gate that also accepts what `RadiusGate` accepts, so it is never narrower than the
+  young-track radius of every other method.
 
 The gates that run networks (`mia`, `ae`) are in `pipeline.tracker.network_gates`.
 """
@@ -127,6 +130,27 @@ class BoundedChiSquareGate(ChiSquareGate):
         scores = super().__call__(tracks, slots, row, prediction)
         far = np.linalg.norm(tracks.plots.position[row] - prediction.positions, axis=1) >= self.window_m
         return Scores(np.where(far, np.inf, scores.errors), scores.prediction)
+
+
+class RadiusFloorGate:
+    """A pair is accepted when the `learned` gate or `RadiusGate(radius_m)` accepts it (issue 27: a learned
+    gate refuses plots unlike its training, e.g. a target faster than any it saw, and then every plot
+    starts its own track). The error is the smaller of the two, the radius's on the chi-square's scale:
+    (distance / radius)^2, what d^2 / quantile is for an isotropic Gaussian innovation whose gate is
+    that ball, so that a pair the radius alone takes compares with the learned gate's pairs as one
+    gate's would (the learned gates here are chi-square gates; Bar-Shalom et al. 2001, 5.4.2). The
+    prediction is the learned gate's (the update resumes from it, whichever test accepted)."""
+
+    def __init__(self, learned: Gate, radius_m: float) -> None:
+        self.learned, self.radius_m = learned, radius_m
+        self.uses_prediction, self.pairwise = learned.uses_prediction, learned.pairwise
+        self.latest_plots = learned.latest_plots
+
+    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int | np.ndarray, prediction: Prediction | None
+                 ) -> Scores:
+        scores = self.learned(tracks, slots, row, prediction)
+        distance = np.linalg.norm(tracks.last_plot[slots] - tracks.plots.position[row], axis=1)
+        return Scores(np.minimum(scores.errors, within(distance, self.radius_m) ** 2), scores.prediction)
 
 
 class AcceptAll:

@@ -69,16 +69,20 @@ class Method:
 
 def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: int, window_m: float,
                  params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
-                 young_gate: "Gate | None" = None) -> "Composition":
+                 young_gate: "Gate | None" = None, learned: tuple[bool, bool] = (False, False)) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
     pre-filter distance of params, nearest neighbour per plot, the tracker's management rule and
-    its association priority (`tracker.mature_first`)."""
+    its association priority (`tracker.mature_first`). `learned`: whether its (young, mature) gate
+    is learned, sized by a network's output; such a composition counts the plots its learned gates
+    refuse that the window would take (`pipeline.tracker.refusals`)."""
     from pipeline.tracker.assigner import NearestPerPlot
     from pipeline.tracker.gate import RadiusGate
+    from pipeline.tracker.refusals import RefusalWatch
     from pipeline.tracker.run import Composition
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
                        params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
-                       management(params.management, params), params.mature_first)
+                       management(params.management, params), params.mature_first,
+                       RefusalWatch(window_m, *learned) if any(learned) else None)
 
 
 def _network_estimator(models: "Models") -> "NetworkEstimator":
@@ -103,14 +107,14 @@ def _mia(models: "Models", params: "TrackerParams", window_m: float, seed: Seed)
     from pipeline.tracker.network_gates import MonteCarloGate
     estimator = _network_estimator(models)
     return _composition("mia", estimator, MonteCarloGate(estimator, params, np.random.default_rng(seed)),
-                        params.young_track_plots, window_m, params)
+                        params.young_track_plots, window_m, params, learned=(False, True))
 
 
 def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     from pipeline.tracker.network_gates import AutoencoderGate
     return _composition("ae", _network_estimator(models),
                         AutoencoderGate(models.autoencoder, models.runnable["autoencoder"]),
-                        params.young_track_plots_ae, window_m, params)
+                        params.young_track_plots_ae, window_m, params, learned=(False, True))
 
 
 def _classical(name: str, kind: str, global_nearest: bool):
@@ -130,12 +134,16 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
     (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
     covariance rather than the `window_m` ball, which let clutter through to confirmed tracks (issue 18);
-    and never beyond `tracker.lstm_update_gate_m` of the prediction (`BoundedChiSquareGate`)."""
-    from pipeline.tracker.gate import BoundedChiSquareGate
+    and never beyond `tracker.lstm_update_gate_m` of the prediction (`BoundedChiSquareGate`). The start
+    velocities span the training's speeds, so a faster target's second plot falls outside every young
+    gate and each plot starts a track (issue 27): with `tracker.young_window_fallback` the young gate
+    also takes what the `window_m` ball takes (`RadiusFloorGate`), as every other method's does."""
+    from pipeline.tracker.gate import BoundedChiSquareGate, RadiusFloorGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
     gate = BoundedChiSquareGate(params.kalman_gate_probability, params.lstm_update_gate_m)
+    young_gate = RadiusFloorGate(gate, window_m) if params.young_window_fallback else gate
     return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed), gate,
-                        params.young_track_plots, window_m, params, young_gate=gate)
+                        params.young_track_plots, window_m, params, young_gate=young_gate, learned=(True, True))
 
 
 def _kalman_net(name: str, global_nearest: bool):
@@ -146,7 +154,7 @@ def _kalman_net(name: str, global_nearest: bool):
         estimator = KalmanNetEstimator(models.kalman_net)
         return _composition(name, estimator, PlotScaledGate(estimator, params.kalman_gate_probability),
                             params.young_track_plots, window_m, params,
-                            assigner=GlobalNearestPerScan() if global_nearest else None)
+                            assigner=GlobalNearestPerScan() if global_nearest else None, learned=(False, True))
     return compose
 
 

@@ -20,6 +20,10 @@ roles the loop still scores a few of them at once, ahead (`_track_ahead`), and s
 again, alone, when a track that changed in between (`LiveTracks.changed`) was or now is among its
 candidates: the same updates to the bit, with one prediction and gate call for most plots.
 
+A composition may carry a `RefusalWatch` (`pipeline.tracker.refusals`): the loop hands it each
+plot with its final candidates, and it counts the plots a learned gate refused that the plain
+window would have taken (issue 27); the caller reads and reports its counts.
+
 The loop knows no method: no name, no type test. It works in ECEF; each plot brings its
 radar's measurement covariance in the plot table, so plots of several radars mix. A long
 recording can be given a part at a time (`track_chunks`), with the same updates as whole.
@@ -39,6 +43,7 @@ from pipeline.tracker.assigner import Assigner, Candidates
 from pipeline.tracker.estimator import Estimator, Prediction
 from pipeline.tracker.gate import Gate
 from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.refusals import RefusalWatch
 from pipeline.tracker.tracks import LiveTracks
 from pipeline.tracker.updates import START, Updates
 
@@ -54,7 +59,8 @@ class Composition:
     others; candidates lie within `prefilter_m` metres of the plot (by their last position).
     `label` and `young_label` name, in the updates' `association` column, which gate won.
     `mature_first`: a plot inside a mature track's gate is not offered to young tracks (see
-    `_candidates`)."""
+    `_candidates`). `refusals`: counts, for a composition with a learned gate, the plots it refused
+    that the window would have taken (None: none counted)."""
 
     label: str
     estimator: Estimator
@@ -66,6 +72,7 @@ class Composition:
     assigner: Assigner
     management: TrackManagement
     mature_first: bool
+    refusals: RefusalWatch | None = None
 
     @property
     def pairwise(self) -> bool:
@@ -129,6 +136,7 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
         candidates = _candidates(live, rows, tracker)
     else:
         candidates = [c for row in rows for c in _candidates(live, range(row, row + 1), tracker)]
+    _count_refusals(live, rows, candidates, tracker)
     choices = tracker.assigner.assign(live, rows, candidates)
     chosen = [None if choice is None else _chosen(live, c, choice) for c, choice in zip(candidates, choices)]
     ahead = _updated_ahead(live, rows, candidates, chosen, estimator) if len(rows) > 1 and tracker.pairwise else {}
@@ -166,8 +174,17 @@ def _track_ahead(live: LiveTracks, rows: range, tracker: Composition, updates: U
         live.manage(plots.time[row])
         if live.changed and not _unchanged_near(live, row, c.slots, tracker.prefilter_m):
             c = _candidates(live, range(row, row + 1), tracker)[0]
+        _count_refusals(live, range(row, row + 1), [c], tracker)
         choice = tracker.assigner.assign(live, range(row, row + 1), [c])[0]
         _take(live, row, c, None if choice is None else _chosen(live, c, choice), tracker, updates, {})
+
+
+def _count_refusals(live: LiveTracks, rows: range, candidates: list[Candidates], tracker: Composition) -> None:
+    """Hand the plots of `rows` with their final candidates, scored against the tracks as they are
+    now, to the composition's `RefusalWatch`, if it has one: each plot once."""
+    if tracker.refusals is not None:
+        for row, c in zip(rows, candidates):
+            tracker.refusals.count(live, row, c)
 
 
 def _chosen(live: LiveTracks, c: Candidates, choice: int) -> tuple[int, int, int]:
