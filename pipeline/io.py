@@ -238,12 +238,11 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
                 continue
             raise InputError(f"{path}: column '{field.name}' is missing (expected {field.type})")
         column = table.column(field.name)
-        if not column.type.equals(field.type):
-            try:
-                column = column.cast(field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
-                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
-                                 f"({_first_line(error)})") from None
+        try:
+            column = converted(column, field)
+        except ColumnTypeError as error:
+            raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
+                             f"({error})") from None
         if not field.nullable and column.null_count:
             raise InputError(f"{path}: column '{field.name}' has {column.null_count} missing values")
         if pa.types.is_floating(field.type) and not field.nullable:
@@ -257,6 +256,75 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
 
 def _first_line(error: Exception) -> str:
     return str(error).splitlines()[0] if str(error) else type(error).__name__
+
+
+UNIX_TIME_SUFFIX = "_unix_s"  # every column of Unix seconds the project reads is named so (`time_unix_s`)
+# The integers a float type holds one by one (its significand's bits plus one): past them a float
+# id may be a rounded one (IEEE 754-2008, table 3.5: binary32 p = 24, binary64 p = 53).
+_EXACT_INTEGERS = {pa.float16(): 2.0 ** 11, pa.float32(): 2.0 ** 24, pa.float64(): 2.0 ** 53}
+
+
+class ColumnTypeError(ValueError):
+    """A column's type cannot be read as its schema's without losing what it means; the message
+    says why (the readers add the file, the column and both types)."""
+
+
+def converted(column: pa.Array | pa.ChunkedArray, field: pa.Field, first_row: int = 0
+              ) -> pa.Array | pa.ChunkedArray:
+    """`column` as `field.type`, where the conversion cannot change what a value means; `first_row`
+    is the file row of the column's first value (for the message).
+
+    Arrow's safe cast already refuses an integer that does not fit (an int64 id past int32 is
+    refused, not wrapped), a float with a fraction read as an integer and an integer past 2^53 read
+    as float64. Refused here as well, where Arrow would convert without a word:
+    - a Unix-time column (`*_unix_s`) of any type but float64. float32 holds a present-day Unix time
+      only to 128 s (its 24-bit significand over 2^30..2^31 s, 2004 to 2038), float16 not at all;
+      integers could be seconds, milliseconds or nanoseconds, and a timestamp type is not Unix
+      seconds either: which one is meant is not guessed.
+    - float16 for any float column: an 11-bit significand holds an azimuth to 0.25 deg, a range of
+      50 km to 32 m.
+    - a float column read as integers (ids) with a value past the integers its type holds one by
+      one (2^24 for float32, 2^53 for float64): the id may have been rounded when it was written.
+    Raises ColumnTypeError."""
+    if column.type.equals(field.type):
+        return column
+    if field.name.endswith(UNIX_TIME_SUFFIX) and pa.types.is_floating(field.type):
+        raise ColumnTypeError(_time_type_reason(column.type))
+    if pa.types.is_floating(field.type) and column.type.equals(pa.float16()):
+        raise ColumnTypeError("a float16 holds about 3 significant digits: write the column as float64 or float32")
+    if pa.types.is_integer(field.type) and pa.types.is_floating(column.type):
+        _check_float_integers(column, first_row)
+    try:
+        return column.cast(field.type)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+        raise ColumnTypeError(_first_line(error)) from None
+
+
+def _time_type_reason(kind: pa.DataType) -> str:
+    """Why a column of `kind` is not read as Unix seconds (`converted`)."""
+    if kind.equals(pa.float32()):
+        return ("a float32 holds a present-day Unix time only to 128 s, so the times are already lost: write "
+                "them as float64 Unix seconds")
+    if pa.types.is_floating(kind):
+        return f"a {kind} cannot hold a present-day Unix time: write the times as float64 Unix seconds"
+    if pa.types.is_integer(kind):
+        return (f"integer times could be seconds, milliseconds or nanoseconds, which is not guessed: write them "
+                "as float64 Unix seconds")
+    return f"Unix seconds are read from float64 only, not converted from {kind}: write them as float64 Unix seconds"
+
+
+def _check_float_integers(column: pa.Array | pa.ChunkedArray, first_row: int) -> None:
+    """Raise ColumnTypeError for a float `column` read as integers with a value past the integers
+    its type holds one by one (`_EXACT_INTEGERS`)."""
+    exact = _EXACT_INTEGERS[column.type]
+    values = column.to_numpy(zero_copy_only=False) if column.null_count == 0 else \
+        column.fill_null(0).to_numpy(zero_copy_only=False)
+    beyond = np.abs(values) > exact
+    if beyond.any():
+        row = int(np.argmax(beyond))
+        raise ColumnTypeError(f"row {first_row + row} is {float(values[row])!r}, past 2^{int(np.log2(exact))}, "
+                              f"beyond which a {column.type} no longer holds every integer: the id may have been "
+                              "rounded; write the column as integers")
 
 
 READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
@@ -325,19 +393,18 @@ class _NumericColumn:
         self.filled = self.nulls = self.nan = 0
         self.first_nan: int | None = None
         self.wrong_type: pa.DataType | None = None
-        self.cast_error = ""  # Arrow's reason, naming the value that does not fit (an int64 id past int32)
+        self.cast_error = ""  # why it cannot be read (`converted`), naming the value that does not fit
 
     def add(self, column: pa.Array) -> None:
         """The column's next batch."""
         start, self.filled = self.filled, self.filled + len(column)
         if self.wrong_type is not None:
             return
-        if not column.type.equals(self.field.type):
-            try:
-                column = column.cast(self.field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
-                self.wrong_type, self.cast_error = column.type, _first_line(error)
-                return
+        try:
+            column = converted(column, self.field, start)
+        except ColumnTypeError as error:
+            self.wrong_type, self.cast_error = column.type, str(error)
+            return
         self.nulls += column.null_count
         values = column.fill_null(0).to_numpy(zero_copy_only=False) if column.null_count else column.to_numpy()
         self.values[start:self.filled] = values

@@ -295,14 +295,17 @@ def _batches(path: Path, ordered: bool = True) -> Iterator[pa.Table]:
 
 
 def _checked(batch: pa.RecordBatch) -> pa.Table:
-    """A batch in PLOT_INPUT_SCHEMA if every value is one the whole read accepts (types, nulls,
-    NaN, `input_checks.PLOT_CHECKS`); raises _NotStreamable (or pa.ArrowInvalid) otherwise."""
+    """A batch in PLOT_INPUT_SCHEMA if every value is one the whole read accepts (types, as
+    `io.converted` reads them, nulls, NaN, `input_checks.PLOT_CHECKS`); raises _NotStreamable otherwise."""
     columns = []
     for field in PLOT_INPUT_SCHEMA:
         if field.name not in batch.schema.names:
             columns.append(pa.nulls(batch.num_rows, field.type))
             continue
-        column = batch.column(field.name).cast(field.type)
+        try:
+            column = io.converted(batch.column(field.name), field)
+        except io.ColumnTypeError:
+            raise _NotStreamable from None
         if column.null_count and not field.nullable:
             raise _NotStreamable
         columns.append(column)
