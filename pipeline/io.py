@@ -3,7 +3,9 @@
 Every output is written to a temporary file beside its destination and renamed into
 place, so an interrupted stage never leaves a half file that the next stage (or DVC)
 would take for a result. A writer killed outright (SIGKILL, the OOM killer) cannot remove
-its temporary; the next write of the same destination does, so leftovers never pile up.
+its temporary; the next write of the same destination does, so leftovers never pile up. The
+same holds for the temporary folders commands work in (`temporary_folder`): each is named with
+its owner's pid and host, and removed by the next command to make one there once its owner is dead.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
+import socket
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -86,28 +90,70 @@ def process_alive(pid: int) -> bool:
     return True
 
 
-def _remove_stale_temporaries(destination: Path) -> None:
-    """Remove the temporaries of `destination` whose writer is dead, named
-    `.<name>.<pid>.<random>.tmp`; a live writer's (another process still writing) is left alone."""
-    pattern = re.compile(rf"\.{re.escape(destination.name)}\.(\d+)\.[^.]+\.tmp")
-    for candidate in destination.parent.iterdir():
+HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname().split(".")[0]) or "host"  # as temporaries' names carry it
+
+
+def owned_prefix(prefix: str) -> str:
+    """The start of a temporary's name made by this process: `<prefix>.<pid>.<host>.`; `mkstemp` or
+    `mkdtemp` add `<random>` and the suffix `.tmp`, so that `remove_stale_temporaries` can tell a dead
+    owner's leftover from a live one's."""
+    return f"{prefix}.{os.getpid()}.{HOST}."
+
+
+def remove_stale_temporaries(folder: Path, prefix: str) -> list[Path]:
+    """Remove the temporaries in `folder` named `<prefix>.<pid>.<host>.<random>.tmp` (files or folders,
+    `owned_prefix`) whose owner is dead: made on this host, by this user, by a process that no longer
+    runs. A live owner's, another host's (a pid means nothing on another machine: a shared disk) and
+    another user's are left alone. Returns what was removed. A process killed outright (SIGKILL, the
+    OOM killer) runs no cleanup of its own, so its temporaries are removed by the next that makes one
+    of the same prefix in the same folder."""
+    pattern = re.compile(rf"{re.escape(prefix)}\.(\d+)\.([A-Za-z0-9-]+)\.[^.]+\.tmp")
+    removed = []
+    for candidate in folder.iterdir() if folder.is_dir() else ():
         match = pattern.fullmatch(candidate.name)
-        if match and not process_alive(int(match.group(1))):
-            candidate.unlink(missing_ok=True)
+        if not match or match.group(2) != HOST or process_alive(int(match.group(1))):
+            continue
+        try:
+            if candidate.lstat().st_uid != os.getuid():
+                continue
+            if candidate.is_dir() and not candidate.is_symlink():
+                shutil.rmtree(candidate)
+            else:
+                candidate.unlink()
+        except FileNotFoundError:  # removed meanwhile by another process cleaning up
+            continue
+        removed.append(candidate)
+    return removed
+
+
+@contextmanager
+def temporary_folder(prefix: str, parent: str | Path | None = None) -> Iterator[Path]:
+    """A new folder `<parent>/<prefix>.<pid>.<host>.<random>.tmp` (the system's temporary folder if
+    `parent` is None), removed when the block ends, however it ends; dead owners' folders of the same
+    prefix in `parent` are removed first (`remove_stale_temporaries`). Every temporary folder a command
+    makes is made here: `tempfile.TemporaryDirectory` cannot clean up after a SIGKILL, and its
+    random name does not say whose it was."""
+    parent = Path(parent) if parent is not None else Path(tempfile.gettempdir())
+    remove_stale_temporaries(parent, prefix)
+    folder = Path(tempfile.mkdtemp(prefix=owned_prefix(prefix), suffix=".tmp", dir=parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @contextmanager
 def atomic_path(destination: str | Path) -> Iterator[Path]:
     """Yield a temporary path to write to; it replaces `destination` only if the block succeeds.
 
-    The temporary's name carries the writer's pid, so that the next write of `destination`
-    can tell a killed writer's leftover from a live one's and remove it. The new file gets the
+    The temporary's name carries the writer's pid and host (`owned_prefix`), so that the next write
+    of `destination` can tell a killed writer's leftover from a live one's and remove it. The new file gets the
     mode a plain `open` would give it (0666 less the umask), or the mode of the file it
     replaces: mkstemp's private 0600 would otherwise hide outputs from a team's other accounts."""
     destination = Path(destination)
     destination.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temporaries(destination)
-    handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.{os.getpid()}.", suffix=".tmp",
+    remove_stale_temporaries(destination.parent, f".{destination.name}")
+    handle, temporary = tempfile.mkstemp(prefix=owned_prefix(f".{destination.name}"), suffix=".tmp",
                                          dir=destination.parent)
     os.close(handle)
     try:

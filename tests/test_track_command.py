@@ -10,6 +10,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -746,6 +749,51 @@ def test_an_out_of_order_recording_with_an_error_gives_the_whole_reads_error_and
         with pytest.raises(io.InputError, match=message), streamed_recording.read_recording(*paths, params.radar, scratch):
             pass
         assert not list(scratch.iterdir())
+
+
+def finished_pid() -> int:
+    """The pid of a process that has ended (a pid no process of this host runs, until it is reused)."""
+    process = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                             check=True)
+    return int(process.stdout)
+
+
+def test_a_killed_tracks_sort_folder_is_removed_by_the_next_sort_and_a_live_ones_is_left(params, tmp_path,
+                                                                                         filters_only):
+    """Sort folders beside `--out` as a `track` killed during its sort (SIGKILL: no cleanup runs) left
+    them, named with the owner's pid and host: the next `track` that sorts there removes the dead
+    owner's (a finished process's pid), with the runs inside, and leaves a live owner's (a running
+    process's), another host's and an unrelated folder alone; its own folder is gone at its end."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(15))
+    running = subprocess.Popen(["sleep", "60"])
+    try:
+        dead = tmp_path / f".track-sort.{finished_pid()}.{io.HOST}.k1llxd_1.tmp"
+        live = tmp_path / f".track-sort.{running.pid}.{io.HOST}.aliv3abc.tmp"
+        elsewhere = tmp_path / f".track-sort.{finished_pid()}.other-{io.HOST}.r3mote12.tmp"
+        unrelated = tmp_path / ".track-sort.notes"
+        for folder in (dead / "runs", live, elsewhere, unrelated):
+            folder.mkdir(parents=True)
+        (dead / "runs" / "run-0.parquet").write_bytes(b"sorted run")
+        assert track_command(tmp_path, filters_only, "kalman_cv", out_of_order(in_order(plots), "late"), radars) == 0
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".track-sort")) == sorted(
+            [live.name, elsewhere.name, unrelated.name])
+    finally:
+        running.kill()
+        running.wait()
+
+
+def test_an_atomic_writes_dead_temporary_is_removed_and_its_own_named_with_pid_and_host(tmp_path):
+    """`io.atomic_path`'s temporary is `.<name>.<pid>.<host>.<random>.tmp`; the next write of the same
+    file removes a dead writer's (with the old name of another output left alone)."""
+    out = tmp_path / "tracks.parquet"
+    stale = tmp_path / f".tracks.parquet.{finished_pid()}.{io.HOST}.abcdefgh.tmp"
+    other = tmp_path / f".summary.json.{finished_pid()}.{io.HOST}.abcdefgh.tmp"
+    stale.write_bytes(b"half")
+    other.write_bytes(b"half")
+    with io.atomic_path(out) as temporary:
+        assert temporary.name.startswith(f".tracks.parquet.{os.getpid()}.{io.HOST}.") and temporary.suffix == ".tmp"
+        temporary.write_bytes(b"whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([other.name, out.name])
 
 
 def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
