@@ -11,6 +11,7 @@ its owner's pid and host, and removed by the next command to make one there once
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import shutil
@@ -24,6 +25,8 @@ from typing import Any, Iterator
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+log = logging.getLogger("pipeline")
 
 
 def schema(*columns: tuple) -> pa.Schema:
@@ -121,6 +124,9 @@ def remove_stale_temporaries(folder: Path, prefix: str) -> list[Path]:
             else:
                 candidate.unlink()
         except FileNotFoundError:  # removed meanwhile by another process cleaning up
+            continue
+        except OSError as error:  # a leftover that cannot be removed must not stop the command
+            log.warning("%s: a dead process's temporary, left in place: %s", candidate, _first_line(error))
             continue
         removed.append(candidate)
     return removed
