@@ -12,8 +12,13 @@ ed. 1.32, CAT034 ed. 1.29):
 A CAT048 record is not always a plot the tracker can use. Records that are not one are left
 out and counted by reason (`Recording.skipped`, one warning line):
 
+- not an aircraft: I048/020 SIM=1 ("simulated target report"), TST=1 (first extension: "test
+  target report") or RAB=1 ("report from field monitor (fixed transponder)"): a radar's test
+  target and its site monitor would otherwise be tracked as aircraft (case 32).
 - no position: no I048/040 (sent only "when there is a detection"), I048/020 TYP=0 (no
-  detection: a track's coasted report) or I048/170 TRE=1 (the last report of a radar track).
+  detection: a track's coasted report), I048/170 TRE=1 (the last report of a radar track) or
+  I048/020 ERR=1 (the range is past I048/040's 256 NM: RHO holds its maximum and the range is in
+  the Reserved Expansion Field, which is not read).
 - no usable altitude: no I048/090, or I048/090 with G=1 (garbled code) or V=1 (code not
   validated). The tracker places a plot from its slant range, azimuth and altitude: a wrong
   altitude moves the plot's ground position by kilometres (FL 1000 instead of FL 350 at 30 km
@@ -22,6 +27,14 @@ out and counted by reason (`Recording.skipped`, one warning line):
   tracker is built for.
 - datablocks of other categories (CAT062 tracks, CAT001, or a corrupted category byte),
   counted by category so that plots that vanish are visible.
+
+The other report flags of I048/020 describe a real aircraft's reply and are read past: RDP (which
+of the radar's two processing chains), SPI (the pilot's ident), XPP (X-pulse), ME and MI
+(military emergency and identification), FOE/FRI (the Mode 4 reply), and the later extensions'
+ADS-B, SCN, PAI and transponder-capability fields. (Meanings: CAT048 I048/020 in EUROCONTROL
+ASTERIX Part 4 Category 48, as in the asterix-specs definitions libasterix is generated from.)
+A file with no CAT048 record at all holds no plots (a CAT062 track file, or service messages
+only): it is an InputError saying so and what the file held.
 
 Every decoded value is checked against what the standard allows (`ALLOWED`); a value outside
 it, or a mandatory item missing, is an InputError naming the file, the datablock (number and
@@ -56,6 +69,11 @@ NORTH_MARKER = 1   # I034/000 message type
 NO_DETECTION = 0   # I048/020 TYP
 TRACK_END = 1      # I048/170 TRE
 
+SIMULATED = "CAT048 simulated target report (I048/020 SIM=1)"
+TEST_TARGET = "CAT048 test target report (I048/020 TST=1)"
+FIELD_MONITOR = "CAT048 report from a field monitor (I048/020 RAB=1)"
+NOT_AN_AIRCRAFT = (("SIM", SIMULATED), ("TST", TEST_TARGET), ("RAB", FIELD_MONITOR))  # I048/020 flag set to 1
+EXTENDED_RANGE = "CAT048 range past I048/040 (I048/020 ERR=1)"
 NO_POSITION = "CAT048 record without position (I048/040)"
 NOT_DETECTED = "CAT048 record without detection (I048/020 TYP=0)"
 ENDED = "CAT048 track-end record (I048/170 TRE=1)"
@@ -226,11 +244,13 @@ def _decode_file(path: Path, decoding: _Decoding) -> None:
     data = path.read_bytes()
     if not data:
         raise InputError(f"{path}: empty file, no ASTERIX datablock")
+    held = _Held()
     for number, (offset, chunk) in enumerate(datablocks(data, path)):
         parsed = base.RawDatablock.parse(base.Bits.from_bytes(chunk))
         if isinstance(parsed, ValueError) or len(parsed) != 1:
             raise InputError(f"{path}: datablock {number} at byte {offset} is corrupt: {parsed}")
         category = parsed[0].get_category()
+        held.blocks[category] += 1
         if category not in (34, 48):
             decoding.skipped[f"datablock CAT{category:03d}"] += 1
             continue
@@ -238,6 +258,7 @@ def _decode_file(path: Path, decoding: _Decoding) -> None:
         records = (cat048 if category == 48 else cat034).cv_uap.parse(parsed[0].get_raw_records())
         if isinstance(records, ValueError):
             raise InputError(f"{block}: cannot be decoded: {records}")
+        held.records[category] += len(records)
         for index, record in enumerate(records):
             where = f"{block}, record {index}"
             if category == 34:
@@ -248,6 +269,21 @@ def _decode_file(path: Path, decoding: _Decoding) -> None:
                 decoding.skipped[plot] += 1
             else:
                 decoding.plots.append(plot)
+    if not held.records[48]:
+        raise InputError(f"{path}: holds no plots: no CAT048 target report (it holds {held})")
+
+
+@dataclass
+class _Held:
+    """What one file holds: datablocks by category, records of the categories read (34, 48)."""
+
+    blocks: Counter = field(default_factory=Counter)
+    records: Counter = field(default_factory=Counter)
+
+    def __str__(self) -> str:
+        return ", ".join(f"{count} CAT{category:03d} datablock{'s' * (count != 1)}"
+                         + (f" of {self.records[category]} records" if category in (34, 48) else "")
+                         for category, count in sorted(self.blocks.items()))
 
 
 def _item(record: object, item: str, where: str) -> object:
@@ -285,16 +321,22 @@ def _flag(variation: object | None, name: str) -> int | None:
 
 def _read_plot(record: object, where: str) -> tuple[int, float, float, float, float] | str:
     """(radar id, time of day s, slant range m, azimuth deg, flight level) of a CAT048 record, or
-    the reason it is not a plot the tracker can place."""
+    the reason it is not a plot the tracker can place (module docstring; the first that applies, in
+    that order)."""
     radar_id = _radar_id(record, "I048/010", where)
     time_of_day = _value(_item(record, "I048/140", where), "I048/140", "s", where)
     variation = {name: getattr(record.get_item(name), "variation", None) for name in ("020", "040", "090", "170")}
+    for flag, reason in NOT_AN_AIRCRAFT:
+        if _flag(variation["020"], flag) == 1:
+            return reason
     if variation["040"] is None:
         return NO_POSITION
     if _flag(variation["020"], "TYP") == NO_DETECTION:
         return NOT_DETECTED
     if _flag(variation["170"], "TRE") == TRACK_END:
         return ENDED
+    if _flag(variation["020"], "ERR") == 1:
+        return EXTENDED_RANGE
     range_nm = _value(variation["040"], "I048/040 RHO", "NM", where)
     azimuth = _value(variation["040"], "I048/040 THETA", "°", where)
     if variation["090"] is None:

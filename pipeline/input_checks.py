@@ -179,4 +179,5 @@ def _check_time_jumps(plots: pa.Table, path: Path) -> None:
                             f"({float(times[row])!r}) within the plots of {within} "
                             f"({int(jumps.sum())} of {len(times)} rows more than {MAX_BACKWARD_JUMP_S:.0f} s "
                             f"earlier than a plot before them): probably a day error (a time of day added to "
-                            f"a fixed date?); give each plot its own date")
+                            f"a fixed date?), not parts merged out of order, which are seconds to minutes apart "
+                            f"and sorted; give each plot its own date")

@@ -3,14 +3,19 @@
 Every output is written to a temporary file beside its destination and renamed into
 place, so an interrupted stage never leaves a half file that the next stage (or DVC)
 would take for a result. A writer killed outright (SIGKILL, the OOM killer) cannot remove
-its temporary; the next write of the same destination does, so leftovers never pile up.
+its temporary; the next write of the same destination does, so leftovers never pile up. The
+same holds for the temporary folders commands work in (`temporary_folder`): each is named with
+its owner's pid and host, and removed by the next command to make one there once its owner is dead.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
+import shutil
+import socket
 import stat
 import tempfile
 from contextlib import contextmanager
@@ -20,6 +25,8 @@ from typing import Any, Iterator
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+log = logging.getLogger("pipeline")
 
 
 def schema(*columns: tuple) -> pa.Schema:
@@ -86,28 +93,73 @@ def process_alive(pid: int) -> bool:
     return True
 
 
-def _remove_stale_temporaries(destination: Path) -> None:
-    """Remove the temporaries of `destination` whose writer is dead, named
-    `.<name>.<pid>.<random>.tmp`; a live writer's (another process still writing) is left alone."""
-    pattern = re.compile(rf"\.{re.escape(destination.name)}\.(\d+)\.[^.]+\.tmp")
-    for candidate in destination.parent.iterdir():
+HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname().split(".")[0]) or "host"  # as temporaries' names carry it
+
+
+def owned_prefix(prefix: str) -> str:
+    """The start of a temporary's name made by this process: `<prefix>.<pid>.<host>.`; `mkstemp` or
+    `mkdtemp` add `<random>` and the suffix `.tmp`, so that `remove_stale_temporaries` can tell a dead
+    owner's leftover from a live one's."""
+    return f"{prefix}.{os.getpid()}.{HOST}."
+
+
+def remove_stale_temporaries(folder: Path, prefix: str) -> list[Path]:
+    """Remove the temporaries in `folder` named `<prefix>.<pid>.<host>.<random>.tmp` (files or folders,
+    `owned_prefix`) whose owner is dead: made on this host, by this user, by a process that no longer
+    runs. A live owner's, another host's (a pid means nothing on another machine: a shared disk) and
+    another user's are left alone. Returns what was removed. A process killed outright (SIGKILL, the
+    OOM killer) runs no cleanup of its own, so its temporaries are removed by the next that makes one
+    of the same prefix in the same folder."""
+    pattern = re.compile(rf"{re.escape(prefix)}\.(\d+)\.([A-Za-z0-9-]+)\.[^.]+\.tmp")
+    removed = []
+    for candidate in folder.iterdir() if folder.is_dir() else ():
         match = pattern.fullmatch(candidate.name)
-        if match and not process_alive(int(match.group(1))):
-            candidate.unlink(missing_ok=True)
+        if not match or match.group(2) != HOST or process_alive(int(match.group(1))):
+            continue
+        try:
+            if candidate.lstat().st_uid != os.getuid():
+                continue
+            if candidate.is_dir() and not candidate.is_symlink():
+                shutil.rmtree(candidate)
+            else:
+                candidate.unlink()
+        except FileNotFoundError:  # removed meanwhile by another process cleaning up
+            continue
+        except OSError as error:  # a leftover that cannot be removed must not stop the command
+            log.warning("%s: a dead process's temporary, left in place: %s", candidate, _first_line(error))
+            continue
+        removed.append(candidate)
+    return removed
+
+
+@contextmanager
+def temporary_folder(prefix: str, parent: str | Path | None = None) -> Iterator[Path]:
+    """A new folder `<parent>/<prefix>.<pid>.<host>.<random>.tmp` (the system's temporary folder if
+    `parent` is None), removed when the block ends, however it ends; dead owners' folders of the same
+    prefix in `parent` are removed first (`remove_stale_temporaries`). Every temporary folder a command
+    makes is made here: `tempfile.TemporaryDirectory` cannot clean up after a SIGKILL, and its
+    random name does not say whose it was."""
+    parent = Path(parent) if parent is not None else Path(tempfile.gettempdir())
+    remove_stale_temporaries(parent, prefix)
+    folder = Path(tempfile.mkdtemp(prefix=owned_prefix(prefix), suffix=".tmp", dir=parent))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @contextmanager
 def atomic_path(destination: str | Path) -> Iterator[Path]:
     """Yield a temporary path to write to; it replaces `destination` only if the block succeeds.
 
-    The temporary's name carries the writer's pid, so that the next write of `destination`
-    can tell a killed writer's leftover from a live one's and remove it. The new file gets the
+    The temporary's name carries the writer's pid and host (`owned_prefix`), so that the next write
+    of `destination` can tell a killed writer's leftover from a live one's and remove it. The new file gets the
     mode a plain `open` would give it (0666 less the umask), or the mode of the file it
     replaces: mkstemp's private 0600 would otherwise hide outputs from a team's other accounts."""
     destination = Path(destination)
     destination.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temporaries(destination)
-    handle, temporary = tempfile.mkstemp(prefix=f".{destination.name}.{os.getpid()}.", suffix=".tmp",
+    remove_stale_temporaries(destination.parent, f".{destination.name}")
+    handle, temporary = tempfile.mkstemp(prefix=owned_prefix(f".{destination.name}"), suffix=".tmp",
                                          dir=destination.parent)
     os.close(handle)
     try:
@@ -238,12 +290,11 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
                 continue
             raise InputError(f"{path}: column '{field.name}' is missing (expected {field.type})")
         column = table.column(field.name)
-        if not column.type.equals(field.type):
-            try:
-                column = column.cast(field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
-                raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
-                                 f"({_first_line(error)})") from None
+        try:
+            column = converted(column, field)
+        except ColumnTypeError as error:
+            raise InputError(f"{path}: column '{field.name}' has type {column.type}, expected {field.type} "
+                             f"({error})") from None
         if not field.nullable and column.null_count:
             raise InputError(f"{path}: column '{field.name}' has {column.null_count} missing values")
         if pa.types.is_floating(field.type) and not field.nullable:
@@ -257,6 +308,75 @@ def read_parquet(path: str | Path, schema: pa.Schema, optional: tuple[str, ...] 
 
 def _first_line(error: Exception) -> str:
     return str(error).splitlines()[0] if str(error) else type(error).__name__
+
+
+UNIX_TIME_SUFFIX = "_unix_s"  # every column of Unix seconds the project reads is named so (`time_unix_s`)
+# The integers a float type holds one by one (its significand's bits plus one): past them a float
+# id may be a rounded one (IEEE 754-2008, table 3.5: binary32 p = 24, binary64 p = 53).
+_EXACT_INTEGERS = {pa.float16(): 2.0 ** 11, pa.float32(): 2.0 ** 24, pa.float64(): 2.0 ** 53}
+
+
+class ColumnTypeError(ValueError):
+    """A column's type cannot be read as its schema's without losing what it means; the message
+    says why (the readers add the file, the column and both types)."""
+
+
+def converted(column: pa.Array | pa.ChunkedArray, field: pa.Field, first_row: int = 0
+              ) -> pa.Array | pa.ChunkedArray:
+    """`column` as `field.type`, where the conversion cannot change what a value means; `first_row`
+    is the file row of the column's first value (for the message).
+
+    Arrow's safe cast already refuses an integer that does not fit (an int64 id past int32 is
+    refused, not wrapped), a float with a fraction read as an integer and an integer past 2^53 read
+    as float64. Refused here as well, where Arrow would convert without a word:
+    - a Unix-time column (`*_unix_s`) of any type but float64. float32 holds a present-day Unix time
+      only to 128 s (its 24-bit significand over 2^30..2^31 s, 2004 to 2038), float16 not at all;
+      integers could be seconds, milliseconds or nanoseconds, and a timestamp type is not Unix
+      seconds either: which one is meant is not guessed.
+    - float16 for any float column: an 11-bit significand holds an azimuth to 0.25 deg, a range of
+      50 km to 32 m.
+    - a float column read as integers (ids) with a value past the integers its type holds one by
+      one (2^24 for float32, 2^53 for float64): the id may have been rounded when it was written.
+    Raises ColumnTypeError."""
+    if column.type.equals(field.type):
+        return column
+    if field.name.endswith(UNIX_TIME_SUFFIX) and pa.types.is_floating(field.type):
+        raise ColumnTypeError(_time_type_reason(column.type))
+    if pa.types.is_floating(field.type) and column.type.equals(pa.float16()):
+        raise ColumnTypeError("a float16 holds about 3 significant digits: write the column as float64 or float32")
+    if pa.types.is_integer(field.type) and pa.types.is_floating(column.type):
+        _check_float_integers(column, first_row)
+    try:
+        return column.cast(field.type)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
+        raise ColumnTypeError(_first_line(error)) from None
+
+
+def _time_type_reason(kind: pa.DataType) -> str:
+    """Why a column of `kind` is not read as Unix seconds (`converted`)."""
+    if kind.equals(pa.float32()):
+        return ("a float32 holds a present-day Unix time only to 128 s, so the times are already lost: write "
+                "them as float64 Unix seconds")
+    if pa.types.is_floating(kind):
+        return f"a {kind} cannot hold a present-day Unix time: write the times as float64 Unix seconds"
+    if pa.types.is_integer(kind):
+        return (f"integer times could be seconds, milliseconds or nanoseconds, which is not guessed: write them "
+                "as float64 Unix seconds")
+    return f"Unix seconds are read from float64 only, not converted from {kind}: write them as float64 Unix seconds"
+
+
+def _check_float_integers(column: pa.Array | pa.ChunkedArray, first_row: int) -> None:
+    """Raise ColumnTypeError for a float `column` read as integers with a value past the integers
+    its type holds one by one (`_EXACT_INTEGERS`)."""
+    exact = _EXACT_INTEGERS[column.type]
+    values = column.to_numpy(zero_copy_only=False) if column.null_count == 0 else \
+        column.fill_null(0).to_numpy(zero_copy_only=False)
+    beyond = np.abs(values) > exact
+    if beyond.any():
+        row = int(np.argmax(beyond))
+        raise ColumnTypeError(f"row {first_row + row} is {float(values[row])!r}, past 2^{int(np.log2(exact))}, "
+                              f"beyond which a {column.type} no longer holds every integer: the id may have been "
+                              "rounded; write the column as integers")
 
 
 READ_BATCH_ROWS = 65536  # rows `read_numeric_parquet` decodes at a time
@@ -325,19 +445,18 @@ class _NumericColumn:
         self.filled = self.nulls = self.nan = 0
         self.first_nan: int | None = None
         self.wrong_type: pa.DataType | None = None
-        self.cast_error = ""  # Arrow's reason, naming the value that does not fit (an int64 id past int32)
+        self.cast_error = ""  # why it cannot be read (`converted`), naming the value that does not fit
 
     def add(self, column: pa.Array) -> None:
         """The column's next batch."""
         start, self.filled = self.filled, self.filled + len(column)
         if self.wrong_type is not None:
             return
-        if not column.type.equals(self.field.type):
-            try:
-                column = column.cast(self.field.type)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as error:
-                self.wrong_type, self.cast_error = column.type, _first_line(error)
-                return
+        try:
+            column = converted(column, self.field, start)
+        except ColumnTypeError as error:
+            self.wrong_type, self.cast_error = column.type, str(error)
+            return
         self.nulls += column.null_count
         values = column.fill_null(0).to_numpy(zero_copy_only=False) if column.null_count else column.to_numpy()
         self.values[start:self.filled] = values

@@ -271,10 +271,13 @@ def _warn_out_of_order(times: np.ndarray, scenario_ids: np.ndarray, source: str)
 
 def note_out_of_order(moved: int, largest: float, source: str) -> None:
     """Warn, if `moved` > 0, of `moved` plots out of time order, the largest `largest` s earlier
-    than a plot before them in their scenario (`input_checks.time_lags`)."""
+    than a plot before them in their scenario (`input_checks.time_lags`). The warning says what
+    such steps are taken for (parts merged out of order) and where a day error begins, which the
+    day-error check refuses, so that the one is not read for the other."""
     if moved:
-        log.warning("%s: %d plots out of time order (up to %.1f s earlier than a plot before them); sorted by time",
-                    source, moved, largest)
+        log.warning("%s: %d plots out of time order (up to %.1f s earlier than a plot before them); sorted by time "
+                    "as parts merged out of order (a step back of more than %.0f s within a radar would be refused "
+                    "as a day error)", source, moved, largest, input_checks.MAX_BACKWARD_JUMP_S)
 
 
 def read_parquet_plots(plots_path: Path, radar_path: Path, radar: Radar) -> Plots:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import tempfile
 from pathlib import Path
 
 from pipeline import evaluation, io, routes, simulate
@@ -25,6 +24,8 @@ from pipeline.params import Params, Site
 from pipeline.progress import progress_logger
 
 log = logging.getLogger("pipeline")
+
+SITE_FOLDER = "pipeline-site"  # the prefix of a site's temporary split in the system's temporary folder
 
 
 def at_site(params: Params, site: Site) -> Params:
@@ -64,9 +65,9 @@ def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
     `params.workers` processes: the site's report entry."""
     label = f"site {site.name}"
     moved = at_site(params, site)
-    with tempfile.TemporaryDirectory(prefix=f"site-{site.name}-") as folder:
-        place_split(moved, Path(folder), label)
-        prepared = evaluation.prepare(moved, Path(folder) / "simulated", Path(folder) / "routes", models_dir)
+    with io.temporary_folder(SITE_FOLDER) as folder:
+        place_split(moved, folder, label)
+        prepared = evaluation.prepare(moved, folder / "simulated", folder / "routes", models_dir)
         runs, _, _, _ = evaluation.evaluate_all(prepared, params.workers, label)
     return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, runs)
 

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -111,13 +110,17 @@ def read_recording(plots_path: Path, radar_path: Path, radar: Radar, scratch: Pa
                    ) -> Iterator[RecordingParts]:
     """The recording of `plot_table.read_parquet_recording`, streamed (module docstring) within
     the block; a recording out of order sorted in a temporary folder in `scratch` (the system's
-    temporary folder if None; best on disk, not in memory), removed when the block ends however
-    it ends (a process killed outright leaves it). Raises what `read_parquet_recording` raises."""
+    temporary folder if None; best on disk, not in memory), `.track-sort.<pid>.<host>.<random>.tmp`,
+    removed when the block ends however it ends; one a process killed outright left is removed by
+    the next `track` to sort there (`io.temporary_folder`). Raises what `read_parquet_recording` raises."""
     radars = io.read_parquet(radar_path, plot_table.RADAR_FILE_SCHEMA, optional=plot_table.OPTIONAL_RADAR_COLUMNS)
     input_checks.check_radars(radars, radar_path)
     sensors = plot_table.sensors(radars, radar)
-    with tempfile.TemporaryDirectory(prefix=".track-sort.", dir=scratch) as folder:
-        yield _opened(plots_path, radar_path, radar, sensors, Path(folder))
+    with io.temporary_folder(SORT_FOLDER, scratch) as folder:
+        yield _opened(plots_path, radar_path, radar, sensors, folder)
+
+
+SORT_FOLDER = ".track-sort"  # the prefix of `read_recording`'s temporary folder
 
 
 def _opened(plots_path: Path, radar_path: Path, radar: Radar, sensors: Mapping[int, Radar], folder: Path
@@ -295,14 +298,17 @@ def _batches(path: Path, ordered: bool = True) -> Iterator[pa.Table]:
 
 
 def _checked(batch: pa.RecordBatch) -> pa.Table:
-    """A batch in PLOT_INPUT_SCHEMA if every value is one the whole read accepts (types, nulls,
-    NaN, `input_checks.PLOT_CHECKS`); raises _NotStreamable (or pa.ArrowInvalid) otherwise."""
+    """A batch in PLOT_INPUT_SCHEMA if every value is one the whole read accepts (types, as
+    `io.converted` reads them, nulls, NaN, `input_checks.PLOT_CHECKS`); raises _NotStreamable otherwise."""
     columns = []
     for field in PLOT_INPUT_SCHEMA:
         if field.name not in batch.schema.names:
             columns.append(pa.nulls(batch.num_rows, field.type))
             continue
-        column = batch.column(field.name).cast(field.type)
+        try:
+            column = io.converted(batch.column(field.name), field)
+        except io.ColumnTypeError:
+            raise _NotStreamable from None
         if column.null_count and not field.nullable:
             raise _NotStreamable
         columns.append(column)

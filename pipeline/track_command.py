@@ -218,10 +218,16 @@ def _write_tracks(recording: streamed_recording.RecordingParts, method: str, win
              report["confirmed_tracks"], len(recording.radars), out, summary_path(out))
 
 
+EXPORT_PLOT_SCHEMA = io.schema(  # the columns of `simulate.PLOT_SCHEMA` that `export_asterix` writes
+    ("scenario_id", pa.int32()), ("scan", pa.int64()), ("time_unix_s", pa.float64()), ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()), ("flight_level", pa.float64()),
+)
+
+
 def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:
     """Write one simulated scenario as a CAT034 + CAT048 recording; `out` must not be an input."""
     io.check_outputs({"--plots": [plots_path], "--radar": [radar_path]}, {"--out": out})
-    plots = io.read_parquet(plots_path, pq.read_schema(plots_path))
+    plots = io.read_parquet(plots_path, EXPORT_PLOT_SCHEMA)
     plots = plots.filter(pa.compute.equal(plots.column("scenario_id"), scenario_id))
     if plots.num_rows == 0:
         raise io.InputError(f"{plots_path}: no plots of scenario {scenario_id}")

@@ -221,6 +221,74 @@ def test_records_without_a_position_or_altitude_are_skipped_and_counted_in_one_w
     assert read_asterix_plots([path], DAY, tf.make_params().radar).skipped == skipped
 
 
+def descriptor(typ: int = 2, sim: int = 0, rdp: int = 0, spi: int = 0, rab: int = 0, **extension: int) -> tuple:
+    """I048/020 with its first part's flags and, if any of TST, ERR, XPP, ME, MI, FOEFRI is given, the
+    first extension (the others 0)."""
+    first = (("TYP", typ), ("SIM", sim), ("RDP", rdp), ("SPI", spi), ("RAB", rab), None)
+    if not extension:
+        return (first,)
+    names = ("TST", "ERR", "XPP", "ME", "MI", "FOEFRI")
+    return first, (*((name, extension.get(name, 0)) for name in names), None)
+
+
+def test_reports_flagged_as_no_aircraft_or_past_i048_040_are_skipped_and_the_other_flags_read_past(tmp_path, caplog):
+    """CAT048 I048/020: SIM=1 (simulated target report), RAB=1 (field monitor, a fixed transponder) and,
+    in the first extension, TST=1 (test target report) are not aircraft; ERR=1 puts the range past
+    I048/040 (in the Reserved Expansion Field). Each is left out and counted by its reason in the one
+    warning line. RDP, SPI, XPP, ME, MI and FOE/FRI describe a real aircraft's reply: those plots are kept."""
+    plots = target(RADAR, 10)
+    for scan, flags in ((1, {"sim": 1}), (2, {"rab": 1}), (3, {"TST": 1}), (4, {"ERR": 1}), (5, {"sim": 1, "rab": 1}),
+                        (6, {"rdp": 1, "spi": 1}), (7, {"XPP": 1, "ME": 1, "MI": 1, "FOEFRI": 2})):
+        plots[scan] = changed(plots[scan], i020=descriptor(**flags))
+    path = recording_of(tmp_path / "flags.ast", plots)
+    decoded, _, skipped = asterix_io.decode(path, DAY)
+    assert skipped == {asterix_io.SIMULATED: 2, asterix_io.FIELD_MONITOR: 1, asterix_io.TEST_TARGET: 1,
+                       asterix_io.EXTENDED_RANGE: 1}
+    np.testing.assert_allclose(decoded.column("range_m").to_numpy(), [30000.0, 36000.0, 37000.0, 38000.0, 39000.0],
+                               atol=units.RANGE_STEP_M)
+    assert (f"{path}: skipped 1 CAT048 range past I048/040 (I048/020 ERR=1), 1 CAT048 report from a field monitor "
+            "(I048/020 RAB=1), 2 CAT048 simulated target report (I048/020 SIM=1), 1 CAT048 test target report "
+            "(I048/020 TST=1)") in caplog.text
+
+
+def test_a_simulated_target_and_a_field_monitor_beside_an_aircraft_leave_only_the_aircrafts_track(tmp_path):
+    """Case 32's kind: each scan holds the aircraft (`target`), a simulated target (SIM=1) flying beside
+    it 10 km further out and the site's field monitor (RAB=1) fixed at 15 km: `track` confirms the
+    aircraft only, and its summary counts the 12 + 12 reports left out."""
+    plots = []
+    for scan, plot in enumerate(target(RADAR, 12)):
+        start = MIDNIGHT + 36000.0 + 6.0 * scan
+        simulated = asterix_io.plot_items(RADAR, start + 1.0, 40000.0 + 1000.0 * scan, 45.0, 350.0)
+        monitor = asterix_io.plot_items(RADAR, start + 2.0, 15000.0, 120.0, 10.0)
+        plots += [plot, changed(simulated, i020=descriptor(sim=1)), changed(monitor, i020=descriptor(rab=1))]
+    tracks, summary = track_asterix(tmp_path, [recording_of(tmp_path / "sim_rab.ast", plots)], "kalman_cv")
+    assert summary["skipped"] == {asterix_io.SIMULATED: 12, asterix_io.FIELD_MONITOR: 12}
+    assert summary["plots_tracked"] == 12 and summary["confirmed_tracks"] == 1
+    assert tracks.column("plot_id").to_pylist() == list(range(12))  # the aircraft's plots, numbered in time order
+    assert set(tracks.column("track_id").to_pylist()) == {0}
+
+
+def test_a_file_without_cat048_reports_is_refused_saying_it_holds_no_plots_and_what_it_holds(tmp_path, caplog):
+    """North markers and CAT062 system tracks but no CAT048 record (a track file given for a plot file):
+    exit 2, the file named as holding no plots, with its datablocks by category and their records;
+    also when it is the second of two files (the first has plots)."""
+    markers = b"".join(asterix_io.datablock(34, [asterix_io.marker_items(RADAR, MIDNIGHT + 36000.0 + 6.0 * k)])
+                       for k in range(3))
+    block = asterix_io.datablock(48, target(RADAR, 4))
+    path = write(tmp_path / "tracks.ast", markers + (bytes([62]) + block[1:]) * 2)
+    message = (f"{path}: holds no plots: no CAT048 target report (it holds 3 CAT034 datablocks of 3 records, "
+               "2 CAT062 datablocks)")
+    with pytest.raises(InputError) as error:
+        asterix_io.decode(path, DAY)
+    assert str(error.value) == message
+    params_path = write_params(tf.params_tree(), tmp_path / "params.yaml")
+    first = recording_of(tmp_path / "plots.ast", target(RADAR, 4))
+    out = tmp_path / "out.parquet"
+    code = cli.main(["track", "--params", str(params_path), "--asterix", str(first), "--asterix", str(path),
+                     "--date", DAY.isoformat(), "--method", "kalman_cv", "--models", str(tmp_path), "--out", str(out)])
+    assert code == 2 and message in caplog.text and not out.exists()
+
+
 def test_garbled_and_unvalidated_flight_levels_leave_the_target_one_confirmed_track(tmp_path):
     """Case 04's kind: a straight target with one garbled (G=1, FL 1000) and one not validated (V=1,
     FL 0) plot. Both are dropped, so neither is placed kilometres off: `track --method kalman_cv` with

@@ -10,6 +10,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +21,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline import (association_net, association_report, baselines, cli, external_sort, geodesy, io, model_store,
-                      plot_table, streamed_recording)
+                      plot_table, streamed_recording, track_tables)
 from pipeline import track_command as track_command_module
 from pipeline.track_command import recording_tracker_params, track_recording
 from pipeline.tracker import registry
@@ -257,6 +260,76 @@ def test_an_impossible_plot_value_names_the_file_column_first_row_value_and_coun
     assert f"row 5 is {float(value)!r} (2 of {plots.num_rows} rows bad)" in str(error.value)
 
 
+def with_type(table: pa.Table, column: str, kind: pa.DataType) -> pa.Table:
+    """`table` with `column` converted to `kind` (unsafely: as a user's own writer would store it); a
+    timestamp from Unix seconds."""
+    index = table.schema.get_field_index(column)
+    values = table.column(column)
+    if pa.types.is_timestamp(kind):
+        values = pa.array((values.to_numpy() * 1e9).astype(np.int64)).cast(kind)
+    return table.set_column(index, column, values.cast(kind, safe=False))
+
+
+@pytest.mark.parametrize("kind, reason", [
+    (pa.float32(), "a float32 holds a present-day Unix time only to 128 s, so the times are already lost"),
+    (pa.int64(), "integer times could be seconds, milliseconds or nanoseconds, which is not guessed"),
+    (pa.timestamp("ns"), "Unix seconds are read from float64 only, not converted from timestamp[ns]"),
+])
+def test_a_time_column_that_is_not_float64_is_refused_naming_the_file_column_and_type(params, tmp_path, filters_only,
+                                                                                       caplog, kind, reason):
+    """`time_unix_s` as float32 (present-day times 128 s apart: every plot would start its own track),
+    as integers (seconds? nanoseconds?) or as a timestamp: `track` exits 2 naming the file, the column
+    and both types, streamed or read whole, and writes nothing."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    stored = with_type(plots, "time_unix_s", kind)
+    assert track_command(tmp_path, filters_only, "kalman_cv", stored, radars) == 2
+    assert (f"plots.parquet: column 'time_unix_s' has type {kind}, expected double ({reason}: write them as "
+            f"float64 Unix seconds)") in caplog.text
+    assert not (tmp_path / "tracks.parquet").exists()
+    whole = tf.write_recording(tmp_path / "whole", stored, radars)
+    with pytest.raises(io.InputError) as error:
+        plot_table.read_parquet_plots(*whole, params.radar)
+    assert str(error.value).startswith(f"{whole[0]}: column 'time_unix_s' has type {kind}, expected double ({reason}")
+
+
+def test_a_track_tables_float32_time_is_refused_by_its_reader(params, tmp_path, filters_only):
+    """The track table `associate` reads, its `time_unix_s` rewritten as float32: refused naming the file
+    and the column, as a recording's is."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    assert track_command(tmp_path, filters_only, "kalman_cv", plots, radars) == 0
+    tracks = tmp_path / "float32.parquet"
+    pq.write_table(with_type(pq.read_table(tmp_path / "tracks.parquet"), "time_unix_s", pa.float32()), tracks)
+    with pytest.raises(io.InputError, match=r"float32.parquet: column 'time_unix_s' has type float, expected "
+                                            r"double \(a float32 holds a present-day Unix time only to 128 s"):
+        track_tables.read_track_table(tracks, tmp_path / "recording" / "radar.parquet")
+
+
+def test_float32_measurements_are_read_and_float16_or_rounded_float_ids_are_refused(params, tmp_path):
+    """float32 range, azimuth and altitude are read as they are stored (within 2^-24 of the value:
+    millimetres at 100 km); a float16 azimuth (0.25 deg apart near 360) is refused, and so are plot ids
+    stored as float32 past 2^24 (33554433 is stored as 33554432), where ids may have been rounded.
+    Whole float ids below it are read as the integers they are."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    stored = with_type(with_type(with_type(plots, "range_m", pa.float32()), "azimuth_deg", pa.float32()),
+                       "altitude_m", pa.float32())
+    read = plot_table.read_parquet_recording(*tf.write_recording(tmp_path / "f32", stored, radars), params.radar)
+    for name in ("range_m", "azimuth_deg", "altitude_m"):
+        np.testing.assert_array_equal(read.table.column(name).to_numpy(), stored.column(name).to_numpy())
+    float_ids = with_type(plots, "plot_id", pa.float64())
+    read = plot_table.read_parquet_recording(*tf.write_recording(tmp_path / "ids", float_ids, radars), params.radar)
+    assert read.table.column("plot_id").to_pylist() == plots.column("plot_id").to_pylist()
+    with pytest.raises(io.InputError, match="column 'azimuth_deg' has type halffloat, expected double "
+                                            r"\(a float16 holds about 3 significant digits"):
+        plot_table.read_parquet_plots(*tf.write_recording(tmp_path / "f16", with_type(plots, "azimuth_deg",
+                                                                                      pa.float16()), radars),
+                                      params.radar)
+    rounded = with_type(with_values(plots, "plot_id", [7], 2**25 + 1), "plot_id", pa.float32())
+    with pytest.raises(io.InputError, match=r"column 'plot_id' has type float, expected int64 \(row 7 is "
+                                            r"33554432.0, past 2\^24, beyond which a float no longer holds every "
+                                            r"integer: the id may have been rounded"):
+        plot_table.read_parquet_plots(*tf.write_recording(tmp_path / "big", rounded, radars), params.radar)
+
+
 @pytest.mark.parametrize("column, value", [
     ("latitude_deg", 90.5), ("latitude_deg", -np.inf), ("longitude_deg", 180.5), ("longitude_deg", -181.0),
     ("height_m", np.inf), ("height_m", 1e6), ("scan_period_s", 0.0), ("scan_period_s", -6.0),
@@ -394,7 +467,7 @@ def test_a_backward_day_jump_within_a_radar_is_refused_as_a_day_error(params, tm
     assert (f"plots.parquet: column 'time_unix_s' jumps back {jump:.0f} s at row 40 "
             f"({float(times[40] - 86400.0)!r}) within the plots of radar {radar_ids[40]}, scenario 7" in caplog.text)
     assert f"({plots.num_rows - 40} of {plots.num_rows} rows more than 3600 s earlier" in caplog.text
-    assert "probably a day error" in caplog.text
+    assert "probably a day error (a time of day added to a fixed date?), not parts merged out of order" in caplog.text
     assert not (tmp_path / "tracks.parquet").exists()
 
 
@@ -415,7 +488,9 @@ def test_plots_out_of_order_are_counted_by_plots_moved_and_the_largest_step(para
     with caplog.at_level("WARNING", logger="pipeline"):
         table = plot_table.read_parquet_plots(*tf.write_recording(tmp_path, recording, radars), params.radar)
     assert (np.diff(table.time) >= 0).all() and len(table) == recording.num_rows
-    assert f"{moved} plots out of time order (up to {largest:.1f} s earlier than a plot before them)" in caplog.text
+    assert (f"{moved} plots out of time order (up to {largest:.1f} s earlier than a plot before them); sorted by "
+            "time as parts merged out of order (a step back of more than 3600 s within a radar would be refused "
+            "as a day error)") in caplog.text
 
 
 def test_twins_of_earlier_plots_are_dropped_and_counted_beside_what_the_reader_skipped(params):
@@ -674,6 +749,51 @@ def test_an_out_of_order_recording_with_an_error_gives_the_whole_reads_error_and
         with pytest.raises(io.InputError, match=message), streamed_recording.read_recording(*paths, params.radar, scratch):
             pass
         assert not list(scratch.iterdir())
+
+
+def finished_pid() -> int:
+    """The pid of a process that has ended (a pid no process of this host runs, until it is reused)."""
+    process = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                             check=True)
+    return int(process.stdout)
+
+
+def test_a_killed_tracks_sort_folder_is_removed_by_the_next_sort_and_a_live_ones_is_left(params, tmp_path,
+                                                                                         filters_only):
+    """Sort folders beside `--out` as a `track` killed during its sort (SIGKILL: no cleanup runs) left
+    them, named with the owner's pid and host: the next `track` that sorts there removes the dead
+    owner's (a finished process's pid), with the runs inside, and leaves a live owner's (a running
+    process's), another host's and an unrelated folder alone; its own folder is gone at its end."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(15))
+    running = subprocess.Popen(["sleep", "60"])
+    try:
+        dead = tmp_path / f".track-sort.{finished_pid()}.{io.HOST}.k1llxd_1.tmp"
+        live = tmp_path / f".track-sort.{running.pid}.{io.HOST}.aliv3abc.tmp"
+        elsewhere = tmp_path / f".track-sort.{finished_pid()}.other-{io.HOST}.r3mote12.tmp"
+        unrelated = tmp_path / ".track-sort.notes"
+        for folder in (dead / "runs", live, elsewhere, unrelated):
+            folder.mkdir(parents=True)
+        (dead / "runs" / "run-0.parquet").write_bytes(b"sorted run")
+        assert track_command(tmp_path, filters_only, "kalman_cv", out_of_order(in_order(plots), "late"), radars) == 0
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".track-sort")) == sorted(
+            [live.name, elsewhere.name, unrelated.name])
+    finally:
+        running.kill()
+        running.wait()
+
+
+def test_an_atomic_writes_dead_temporary_is_removed_and_its_own_named_with_pid_and_host(tmp_path):
+    """`io.atomic_path`'s temporary is `.<name>.<pid>.<host>.<random>.tmp`; the next write of the same
+    file removes a dead writer's (with the old name of another output left alone)."""
+    out = tmp_path / "tracks.parquet"
+    stale = tmp_path / f".tracks.parquet.{finished_pid()}.{io.HOST}.abcdefgh.tmp"
+    other = tmp_path / f".summary.json.{finished_pid()}.{io.HOST}.abcdefgh.tmp"
+    stale.write_bytes(b"half")
+    other.write_bytes(b"half")
+    with io.atomic_path(out) as temporary:
+        assert temporary.name.startswith(f".tracks.parquet.{os.getpid()}.{io.HOST}.") and temporary.suffix == ".tmp"
+        temporary.write_bytes(b"whole")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([other.name, out.name])
 
 
 def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_path, filters_only, monkeypatch):
