@@ -24,7 +24,8 @@ def run_associate(params: Params, track_paths: list[Path], radar_paths: list[Pat
                   pairs_out: Path, fused_out: Path) -> None:
     io.check_outputs({"--tracks": track_paths, "--radar": radar_paths},
                            {"--pairs": pairs_out, "--fused": fused_out})
-    first, second = (read_track_table(tracks, radar) for tracks, radar in zip(track_paths, radar_paths))
+    first, second = (read_track_table(tracks, radar, params.associate.max_speed_mps)
+                     for tracks, radar in zip(track_paths, radar_paths))
     model = association_net.load(models_dir / "association_net.pt") if method == "network" else None
     frame = common_frame(first, second)
     snapshots = common_snapshots(first, second, frame, params.associate)
