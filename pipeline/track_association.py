@@ -45,7 +45,7 @@ def correlation_eigenvalues(covariances: np.ndarray) -> np.ndarray:
     of the eigenvalues: Sylvester's law of inertia), and they are computed to about d·ε absolute, whatever P's
     scale: the diagonal scaling is within a factor d of the best (van der Sluis (1969), "Condition numbers and
     equilibration of matrices", Numer. Math. 14; Higham (2002), "Accuracy and Stability of Numerical
-    Algorithms", section 10.1), where P's own eigenvalues are only good to ε·max(P), so that a variance of
+    Algorithms", chapters 7 and 10 on scaling and the Cholesky factorisation), where P's own eigenvalues are only good to ε·max(P), so that a variance of
     1e20 m² beside 1 m² would be judged indefinite."""
     if not len(covariances):
         return np.zeros((0, covariances.shape[-1]))
@@ -64,7 +64,8 @@ def positive_definite(covariances: np.ndarray) -> np.ndarray:
 
 def check_tracks(states: np.ndarray, covariances: np.ndarray, label: str) -> tuple[np.ndarray, np.ndarray]:
     """`states` (N, d) and `covariances` (N, d, d) as float64, checked: d in STATE_SIZES, finite, covariances
-    symmetric and positive definite (`positive_definite`, whatever their scale). TrackInputError naming `label` (e.g. "radar 2") and the first bad track."""
+    symmetric and positive definite (`positive_definite`, whatever their scale). TrackInputError naming `label`
+    (e.g. "radar 2") and the first bad track."""
     states, covariances = np.asarray(states, dtype=float), np.asarray(covariances, dtype=float)
     if states.ndim != 2 or states.shape[1] not in STATE_SIZES:
         raise TrackInputError(f"{label}: states must be (N, d) with d in {STATE_SIZES}, got shape {states.shape}")

@@ -101,11 +101,19 @@ def test_a_fast_noisy_track_and_two_aircraft_with_their_own_ids_are_accepted():
 
 
 def test_positive_definiteness_is_judged_whatever_the_scale():
-    """Variances 1e20 and 1 m² with correlation 0.1 are positive definite; with a covariance beyond both
-    variances' geometric mean (correlation 2) not. Unscaled eigenvalues are good to 1e20·ε only."""
-    definite = np.array([[1e20, 1e9], [1e9, 1.0]])
-    indefinite = np.array([[1e20, 2e10], [2e10, 1.0]])
-    assert positive_definite(np.stack([definite, indefinite, -definite])).tolist() == [True, False, False]
+    """Variances 1, 1, 1e20, 1e20 m² with every correlation 0.5: positive definite (its correlation matrix's
+    eigenvalues are 0.5 and 2.5), though its own eigenvalues are good to 1e20·ε only (NumPy's smallest came out
+    near -8000, the old test's verdict); with correlations -0.9 of the first two and 0.99 of the last two:
+    indefinite (-0.33), though its smallest eigenvalue came out positive (0.75)."""
+    correlation = np.full((4, 4), 0.5)
+    np.fill_diagonal(correlation, 1.0)
+    indefinite = correlation.copy()
+    indefinite[0, 1] = indefinite[1, 0] = -0.9
+    indefinite[2, 3] = indefinite[3, 2] = 0.99
+    sigma = np.sqrt([1.0, 1.0, 1e20, 1e20])
+    covariances = np.stack([correlation, indefinite]) * sigma[:, None] * sigma[None, :]
+    assert positive_definite(covariances).tolist() == [True, False]
+    assert positive_definite(-covariances[:1]).tolist() == [False]
 
 
 def test_a_huge_covariance_is_kept_pairs_nothing_and_is_named_in_a_warning(caplog):
