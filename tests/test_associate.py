@@ -235,6 +235,9 @@ def test_an_output_named_like_an_input_or_the_other_output_is_refused(users, mod
     ("associate.acceleration_std_mps2", -1.0, "associate.acceleration_std_mps2 = -1.0"),
     ("associate.keep_probability", 0.99, "associate.keep_probability = 0.99: must be at least "
                                          "association.gate_probability"),
+    ("associate.max_speed_mps", 400.0, "associate.max_speed_mps = 400.0: must exceed the fastest aircraft's speed "
+                                       "(fighter: 400.0 m/s)"),
+    ("association.max_time_offset_s", -1.0, "association.max_time_offset_s = -1.0: must be in [0.0, inf]"),
 ])
 def test_a_bad_associate_param_names_the_key_and_value(key, value, named):
     with pytest.raises(ParamError, match=re.escape(named)):
