@@ -13,9 +13,9 @@ tracking, on using the previous track-to-track decisions). The rule here (ours, 
 every method, applied after the method's own decision at each common time:
 
 1. Held pairs: the last common time's pairs of this scenario (by track ids) whose tracks are both still there and
-   whose statistic Δᵀ (P1 + P2)⁻¹ Δ (d = 4, after the method's offset removal, as the method compares) is under
-   the keep gate, the chi-square quantile at `keep_probability` (looser than the forming gate: a pair once
-   formed needs more evidence to break than to form, a hysteresis).
+   whose statistic Δᵀ (P1 + P2)⁻¹ Δ (d = 4, after the method's offset and clock offset removal, as the method
+   compares) is under the keep gate, the chi-square quantile at `keep_probability` (looser than the forming gate:
+   a pair once formed needs more evidence to break than to form, a hysteresis).
 2. The method's pairs whose two tracks are both still free.
 3. The tracks still unpaired on both sides, assigned among themselves (`track_association.assign`, minimum summed
    statistic) under the keep gate: two unpaired tracks that pass it are one aircraft, reported once.
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.bias_robust_association import registered
 from pipeline.common_time_states import Snapshot
 from pipeline.track_association import assign, gate, statistical_distances
 
@@ -37,24 +38,22 @@ def horizontal(states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray,
     return states[:, HORIZONTAL], covariances[:, HORIZONTAL[:, None], HORIZONTAL[None, :]]
 
 
-def pair_statistics(snapshot: Snapshot, bias_m: np.ndarray | None) -> np.ndarray:
+def pair_statistics(snapshot: Snapshot, bias_m: np.ndarray | None, time_offset_s: float | None = None) -> np.ndarray:
     """(N1, N2) chi-square statistics of every pair of the snapshot's horizontal states, the second user's
-    positions less `bias_m` (2,) east, north m if given."""
+    registered (`bias_robust_association.registered`: positions less `bias_m` (2,) east, north m and moved by
+    `time_offset_s` times its velocity, each if given)."""
     (x1, p1), (x2, p2) = (horizontal(x, p) for x, p in zip(snapshot.states, snapshot.covariances))
     if not len(x1) or not len(x2):
         return np.zeros((len(x1), len(x2)))
-    if bias_m is not None:
-        x2 = x2.copy()
-        x2[:, :2] -= bias_m
-    return statistical_distances(x1, p1, x2, p2)
+    return statistical_distances(x1, p1, registered(x2, bias_m, time_offset_s), p2)
 
 
 def continue_pairs(snapshot: Snapshot, pairs: np.ndarray, bias_m: np.ndarray | None, held: set[tuple[int, int]],
-                   keep_probability: float) -> np.ndarray:
+                   keep_probability: float, time_offset_s: float | None = None) -> np.ndarray:
     """One common time's pairs (K, 2) (rows of the snapshot, sorted) from the method's `pairs` (M, 2), its
-    offset `bias_m` (or None) and the last time's pairs `held` as (first user's id, second user's id), by the
-    module docstring's three steps."""
-    statistics = pair_statistics(snapshot, bias_m)
+    offset `bias_m` and clock offset `time_offset_s` (each or None) and the last time's pairs `held` as (first
+    user's id, second user's id), by the module docstring's three steps."""
+    statistics = pair_statistics(snapshot, bias_m, time_offset_s)
     keep = gate(keep_probability, STATE_SIZE)
     row = {int(track): i for i, track in enumerate(snapshot.ids[0])}
     column = {int(track): j for j, track in enumerate(snapshot.ids[1])}
@@ -74,15 +73,16 @@ def continue_pairs(snapshot: Snapshot, pairs: np.ndarray, bias_m: np.ndarray | N
 
 
 def with_memory(snapshots: list[Snapshot], pairs: list[np.ndarray], biases: list[np.ndarray | None],
-                keep_probability: float) -> list[np.ndarray]:
-    """Every common time's pairs continued (`continue_pairs`) in order; the memory is emptied at each new
-    scenario (its track ids are another recording's)."""
+                keep_probability: float, time_offsets: list[float | None] | None = None) -> list[np.ndarray]:
+    """Every common time's pairs continued (`continue_pairs`) in order, with each time's offset and clock offset
+    (None: all None); the memory is emptied at each new scenario (its track ids are another recording's)."""
     out: list[np.ndarray] = []
     held: set[tuple[int, int]] = set()
-    for index, (snapshot, found, bias) in enumerate(zip(snapshots, pairs, biases)):
+    offsets = time_offsets if time_offsets is not None else [None] * len(snapshots)
+    for index, (snapshot, found, bias, offset) in enumerate(zip(snapshots, pairs, biases, offsets)):
         if index and snapshots[index - 1].scenario_id != snapshot.scenario_id:
             held = set()
-        continued = continue_pairs(snapshot, found, bias, held, keep_probability)
+        continued = continue_pairs(snapshot, found, bias, held, keep_probability, offset)
         held = {(int(snapshot.ids[0][i]), int(snapshot.ids[1][j])) for i, j in continued.tolist()}
         out.append(continued)
     return out

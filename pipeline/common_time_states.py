@@ -17,6 +17,10 @@ discrete white-noise acceleration of the extrapolation (ibid., eq. 6.3.2-4, `acc
     P = A diag(P_k, P_j) Aᵀ + Q(τ),   A = [[(1 + τ/Δ) I, -(τ/Δ) I], [I/Δ, -I/Δ]].
 Filtered positions of one track are positively correlated, so treating them as independent overstates the
 velocity's variance: the statistical tests then gate more widely, not more tightly.
+A track is also left out at t when k or j is not informative (a covariance above the track table's ceiling,
+`track_tables.COVARIANCE_CEILING_M2`): it pairs nothing there. A state whose covariance still is not positive
+definite (`track_association.positive_definite`) is refused with an InputError naming the file, the track and
+both rows.
 
 States are [east, north, up, v_east, v_north, v_up] (m, m/s) in one east-north-up frame for both tables,
 at the ellipsoid point under the mean of all described radar sites (so that neither user's frame is
@@ -36,6 +40,7 @@ import numpy as np
 from pipeline import geodesy, io
 from pipeline.params import Associate
 from pipeline.plot_table import NO_SCENARIO
+from pipeline.track_association import positive_definite
 from pipeline.track_tables import TrackTable
 
 STATE_SIZE = 6
@@ -78,15 +83,15 @@ def _extrapolation_noise(tau: np.ndarray, acceleration_std_mps2: float) -> np.nd
     return q
 
 
-def track_states(time: np.ndarray, position: np.ndarray, covariance: np.ndarray, at: np.ndarray,
-                 settings: Associate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def track_states(time: np.ndarray, position: np.ndarray, covariance: np.ndarray, informative: np.ndarray,
+                 at: np.ndarray, settings: Associate) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One track's states at the times `at` (T,) (module docstring) from its updates: times (U,) sorted, ENU
-    positions (U, 3) and covariances (U, 3, 3). Which times have a state (T,) bool, states (K, 6),
-    covariances (K, 6, 6) for those K."""
+    positions (U, 3), covariances (U, 3, 3) and which are informative (U,). Which times have a state (T,) bool,
+    states (K, 6), covariances (K, 6, 6) for those K and the updates (K, 2) [k, j] each is made of."""
     last = np.searchsorted(time, at, side="right") - 1
     valid = (last >= 0) & (at - time[np.maximum(last, 0)] <= settings.max_age_s)
     earlier = np.searchsorted(time, time[np.maximum(last, 0)] - settings.velocity_baseline_s, side="right") - 1
-    valid &= earlier >= 0
+    valid &= (earlier >= 0) & informative[np.maximum(last, 0)] & informative[np.maximum(earlier, 0)]
     k, j = last[valid], earlier[valid]
     delta = time[k] - time[j]
     tau = at[valid] - time[k]
@@ -101,7 +106,21 @@ def track_states(time: np.ndarray, position: np.ndarray, covariance: np.ndarray,
     joint = np.zeros((len(k), STATE_SIZE, STATE_SIZE))
     joint[:, :3, :3], joint[:, 3:, 3:] = covariance[k], covariance[j]
     covariances = a @ joint @ a.transpose(0, 2, 1) + _extrapolation_noise(tau, settings.acceleration_std_mps2)
-    return valid, states, (covariances + covariances.transpose(0, 2, 1)) / 2
+    return valid, states, (covariances + covariances.transpose(0, 2, 1)) / 2, np.stack([k, j], axis=1)
+
+
+def _check_definite(table: TrackTable, rows: np.ndarray, covariances: np.ndarray, updates: np.ndarray) -> None:
+    """InputError naming the file, track and both file rows of the first state whose covariance is not positive
+    definite; `rows` (U,) the track's rows of `table`, `updates` (K, 2) indices into them."""
+    definite = positive_definite(covariances)
+    if not definite.all():
+        k, j = rows[updates[int(np.argmin(definite))]]
+        raise io.InputError(f"{table.path}: track {int(table.track_id[k])}: the covariances (columns "
+                            f"'covariance_*_m2') of rows {int(table.row[k])} and {int(table.row[j])} give a state "
+                            f"covariance that is not positive definite ({int((~definite).sum())} of "
+                            f"{len(definite)} common times); their ECEF variances "
+                            f"{np.diagonal(table.covariance[k]).tolist()} and "
+                            f"{np.diagonal(table.covariance[j]).tolist()} m²")
 
 
 def _table_states(table: TrackTable, scenario_id: int, at: np.ndarray, frame: Frame,
@@ -111,10 +130,12 @@ def _table_states(table: TrackTable, scenario_id: int, at: np.ndarray, frame: Fr
     rows = table.scenario_id == scenario_id
     position = (table.position[rows] - frame.origin) @ frame.rotation.T
     covariance = frame.rotation @ table.covariance[rows] @ frame.rotation.T
-    track_ids, time = table.track_id[rows], table.time[rows]
+    track_ids, time, informative = table.track_id[rows], table.time[rows], table.informative[rows]
     for track_id in np.unique(track_ids):
         own = track_ids == track_id
-        valid, states, covariances = track_states(time[own], position[own], covariance[own], at, settings)
+        valid, states, covariances, updates = track_states(time[own], position[own], covariance[own],
+                                                           informative[own], at, settings)
+        _check_definite(table, np.flatnonzero(rows)[own], covariances, updates)
         for index, state, state_covariance in zip(np.flatnonzero(valid), states, covariances):
             per_time[index][0].append(int(track_id))
             per_time[index][1].append(state)

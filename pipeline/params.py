@@ -384,6 +384,7 @@ class Association:
     max_bias_m: float
     vote_radius_m: float
     max_iterations: int
+    max_time_offset_s: float        # bias_robust also estimates a clock offset of radar 2 up to this (0: not)
     scene_size: int
     scene_diameter_m: float
     feature_hidden: tuple[int, ...]
@@ -438,6 +439,7 @@ class Associate:
     acceleration_std_mps2: float    # white-noise acceleration of the extrapolation to the common time
     fusion_criterion: str           # covariance intersection minimises this (track_fusion.CRITERIA)
     keep_probability: float         # the keep gate of association with memory (association_memory)
+    max_speed_mps: float            # consecutive updates of one track further apart than this: two aircraft
 
 
 @dataclass(frozen=True)
@@ -1178,6 +1180,7 @@ def _association(tree: Mapping[str, Any]) -> Association:
         gate_probability=_number(tree, "gate_probability", p, 0.0, 1.0, low_open=True, high_open=True),
         double_threshold_hits=hits, max_bias_m=_positive(tree, "max_bias_m", p),
         vote_radius_m=_positive(tree, "vote_radius_m", p), max_iterations=_integer(tree, "max_iterations", p, 1),
+        max_time_offset_s=_number(tree, "max_time_offset_s", p, 0.0),
         scene_size=size, scene_diameter_m=_positive(tree, "scene_diameter_m", p),
         feature_hidden=_sizes(tree, "feature_hidden", p), decision_hidden=_integer(tree, "decision_hidden", p, 1),
         decision_threshold=_number(tree, "decision_threshold", p, 0.0, 1.0, low_open=True, high_open=True),
@@ -1240,7 +1243,8 @@ def _associate(tree: Mapping[str, Any]) -> Associate:
     return Associate(step_s=_positive(tree, "step_s", p), max_age_s=max_age,
                      velocity_baseline_s=_positive(tree, "velocity_baseline_s", p),
                      acceleration_std_mps2=_number(tree, "acceleration_std_mps2", p, 0.0), fusion_criterion=criterion,
-                     keep_probability=_number(tree, "keep_probability", p, 0.0, 1.0, low_open=True, high_open=True))
+                     keep_probability=_number(tree, "keep_probability", p, 0.0, 1.0, low_open=True, high_open=True),
+                     max_speed_mps=_positive(tree, "max_speed_mps", p))
 
 
 FUSION_BIAS_KEYS = ("bias_range_m", "bias_azimuth_deg", "bias_east_m", "bias_north_m")
@@ -1335,6 +1339,11 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         raise ParamError(f"associate.keep_probability = {params.associate.keep_probability}: must be at least "
                          f"association.gate_probability = {params.association.gate_probability} (a pair is kept "
                          "on a gate no tighter than the one it was formed on)")
+    fastest = max(aircraft.values(), key=lambda a: a.speed_max_mps)
+    if params.associate.max_speed_mps <= fastest.speed_max_mps:
+        raise ParamError(f"associate.max_speed_mps = {params.associate.max_speed_mps}: must exceed the fastest "
+                         f"aircraft's speed ({fastest.name}: {fastest.speed_max_mps} m/s), or its tracks would be "
+                         "refused as two aircraft under one track id")
     return params
 
 

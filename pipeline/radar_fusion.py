@@ -149,8 +149,10 @@ def radar_tracks(params: Params, fusion_radar: FusionRadar, scene_id: int, route
     believed = believed_radar(fusion_radar)
     recording = plot_table(plots, {fusion_radar.radar.radar_id: believed}, f"scene {scene_id}")
     tracks = track_recording(recording, params.fusion.tracker, params.fusion.window_m, params, models_dir)
-    table = track_table(tracks, {fusion_radar.radar.radar_id: geodesy.radar_site_ecef(believed)},
-                        Path(f"scene {scene_id} radar {fusion_radar.radar.radar_id} tracks"))
+    radar_id = fusion_radar.radar.radar_id
+    table = track_table(tracks, {radar_id: geodesy.radar_site_ecef(believed)},
+                        Path(f"scene {scene_id} radar {radar_id} tracks"), params.associate.max_speed_mps,
+                        {radar_id: believed.scan_period_s})
     return table, majority_targets(tracks, plots), (plots.column("target_id").to_numpy(),
                                                     plots.column("time_unix_s").to_numpy())
 

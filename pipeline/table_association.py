@@ -6,9 +6,10 @@ heights of surveillance radars are poor and the chi-square gates of params `asso
 - `statistical`: `track_association.associate_statistical` (chi-square gate, 2-D assignment);
 - `double_threshold`: `track_association.associate_double_threshold` over the last track_points - 1 common
   times (params `association`), the tracks present at all of them; none at the first track_points - 2 times;
-- `bias_robust`: `bias_robust_association.associate_bias_robust`; its offset estimate is removed from the
-  second user's positions before fusing (and from its unpaired tracks: the picture is in the first user's
-  registration);
+- `bias_robust`: `bias_robust_association.associate_bias_robust` (with a clock offset up to
+  `association.max_time_offset_s`); its offset and clock offset estimates are removed from the second user's
+  positions before fusing (`bias_robust_association.registered`; and from its unpaired tracks: the picture is in
+  the first user's registration);
 - `network`: the trained network (`association_net.associate_network`); beyond `association.scene_size` tracks
   of a user at a time, each first-user track is read in the scene of its nearest tracks
   (`association_net.scene_probabilities`).
@@ -31,7 +32,7 @@ import pyarrow as pa
 
 from pipeline import association_net, geodesy, io
 from pipeline.association_memory import horizontal, with_memory
-from pipeline.bias_robust_association import associate_bias_robust
+from pipeline.bias_robust_association import associate_bias_robust, registered
 from pipeline.common_time_states import Frame, Snapshot
 from pipeline.params import Association
 from pipeline.plot_table import NO_SCENARIO
@@ -49,6 +50,7 @@ PAIRS_SCHEMA = io.schema(
     ("statistic", pa.float64()),
     ("bias_east_m", pa.float64(), True),
     ("bias_north_m", pa.float64(), True),
+    ("time_offset_s", pa.float64(), True),
 )
 FUSED_SCHEMA = io.schema(
     ("scenario_id", pa.int32(), True),
@@ -67,11 +69,12 @@ FUSED_SCHEMA = io.schema(
 
 @dataclass(frozen=True)
 class Decision:
-    """One common time's pairs (K, 2) [first user's row, second user's row] and the second user's estimated
-    offset (2,) east, north m (None unless bias_robust)."""
+    """One common time's pairs (K, 2) [first user's row, second user's row], the second user's estimated
+    offset (2,) east, north m and clock offset (s, its time stamps that much late) (each None unless bias_robust)."""
 
     pairs: np.ndarray
     bias_m: np.ndarray | None
+    time_offset_s: float | None = None
 
 
 def _double_threshold(history: list[Snapshot], association: Association) -> np.ndarray:
@@ -98,7 +101,7 @@ def decide(snapshots: list[Snapshot], method: str, association: Association,
     for index, snapshot in enumerate(snapshots):
         x1, p1 = horizontal(snapshot.states[0], snapshot.covariances[0])
         x2, p2 = horizontal(snapshot.states[1], snapshot.covariances[1])
-        bias = None
+        bias = offset = None
         if not len(x1) or not len(x2):
             pairs = np.zeros((0, 2), dtype=np.int64)
         elif method == "statistical":
@@ -111,13 +114,15 @@ def decide(snapshots: list[Snapshot], method: str, association: Association,
                 pairs = _double_threshold(history, association)
         elif method == "bias_robust":
             result = associate_bias_robust(x1, p1, x2, p2, association.gate_probability, association.max_bias_m,
-                                           association.vote_radius_m, association.max_iterations)
-            pairs, bias = result.pairs, result.bias_m
+                                           association.vote_radius_m, association.max_iterations,
+                                           association.max_time_offset_s)
+            pairs, bias, offset = result.pairs, result.bias_m, result.time_offset_s
         else:
             pairs = association_net.associate_network(model, x1, p1, x2, p2, association.decision_threshold)
-        decisions.append(Decision(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bias))
-    continued = with_memory(snapshots, [d.pairs for d in decisions], [d.bias_m for d in decisions], keep_probability)
-    return [Decision(pairs, decision.bias_m) for pairs, decision in zip(continued, decisions)]
+        decisions.append(Decision(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bias, offset))
+    continued = with_memory(snapshots, [d.pairs for d in decisions], [d.bias_m for d in decisions], keep_probability,
+                            [d.time_offset_s for d in decisions])
+    return [Decision(pairs, decision.bias_m, decision.time_offset_s) for pairs, decision in zip(continued, decisions)]
 
 
 def _scenario_column(scenario_id: int, count: int) -> pa.Array:
@@ -135,18 +140,18 @@ def pairs_table(snapshots: list[Snapshot], decisions: list[Decision]) -> pa.Tabl
         rows, columns = decision.pairs[:, 0], decision.pairs[:, 1]
         x1, p1 = horizontal(snapshot.states[0][rows], snapshot.covariances[0][rows])
         x2, p2 = horizontal(snapshot.states[1][columns], snapshot.covariances[1][columns])
-        if decision.bias_m is not None:
-            x2 = x2.copy()
-            x2[:, :2] -= decision.bias_m
+        x2 = registered(x2, decision.bias_m, decision.time_offset_s)
         statistic = np.diagonal(statistical_distances(x1, p1, x2, p2)) if len(rows) else np.zeros(0)
         count = len(rows)
         bias = np.full((count, 2), np.nan) if decision.bias_m is None else np.tile(decision.bias_m, (count, 1))
+        offset = np.full(count, np.nan if decision.time_offset_s is None else decision.time_offset_s)
         parts.append(pa.Table.from_pydict({
             "scenario_id": _scenario_column(snapshot.scenario_id, count),
             "time_unix_s": np.full(count, snapshot.time), "track_id_1": snapshot.ids[0][rows],
             "track_id_2": snapshot.ids[1][columns], "statistic": statistic,
             "bias_east_m": pa.array(bias[:, 0], mask=np.isnan(bias[:, 0])),
-            "bias_north_m": pa.array(bias[:, 1], mask=np.isnan(bias[:, 1]))}, schema=PAIRS_SCHEMA))
+            "bias_north_m": pa.array(bias[:, 1], mask=np.isnan(bias[:, 1])),
+            "time_offset_s": pa.array(offset, mask=np.isnan(offset))}, schema=PAIRS_SCHEMA))
     return pa.concat_tables(parts) if parts else PAIRS_SCHEMA.empty_table()
 
 
@@ -154,9 +159,7 @@ def picture(snapshot: Snapshot, decision: Decision, criterion: str) -> tuple[np.
     """One time's picture: source index (R,), track ids (R, 2) (-1 where none), states (R, 6), covariances
     (R, 6, 6), weights (R,) (NaN for unpaired rows); fused pairs first, then each user's unpaired tracks."""
     (x1, x2), (p1, p2), pairs = snapshot.states, snapshot.covariances, decision.pairs
-    if decision.bias_m is not None:
-        x2 = x2.copy()
-        x2[:, :2] -= decision.bias_m
+    x2 = registered(x2, decision.bias_m, decision.time_offset_s)
     fused, fused_covariances, weights = fuse_pairs(x1, p1, x2, p2, pairs, criterion)
     alone = [np.setdiff1d(np.arange(len(x)), pairs[:, user]) for user, x in enumerate((x1, x2))]
     ids = np.full((len(pairs) + len(alone[0]) + len(alone[1]), 2), -1, dtype=np.int64)

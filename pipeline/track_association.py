@@ -39,9 +39,33 @@ class TrackInputError(InputError):
     """Tracks or covariances unusable for association: the message names the radar and what is wrong."""
 
 
+def correlation_eigenvalues(covariances: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues (N, d) of the correlation matrices D^-1/2 P D^-1/2 of covariances (N, d, d) with
+    positive diagonals D. P is positive definite exactly when they are all positive (a congruence keeps the signs
+    of the eigenvalues: Sylvester's law of inertia), and they are computed to about d·ε absolute, whatever P's
+    scale: the diagonal scaling is within a factor d of the best (van der Sluis (1969), "Condition numbers and
+    equilibration of matrices", Numer. Math. 14; Higham (2002), "Accuracy and Stability of Numerical
+    Algorithms", chapters 7 and 10 on scaling and the Cholesky factorisation), where P's own eigenvalues are only good to ε·max(P), so that a variance of
+    1e20 m² beside 1 m² would be judged indefinite."""
+    if not len(covariances):
+        return np.zeros((0, covariances.shape[-1]))
+    scale = 1.0 / np.sqrt(np.diagonal(covariances, axis1=1, axis2=2))
+    return np.linalg.eigvalsh(covariances * scale[:, :, None] * scale[:, None, :])
+
+
+def positive_definite(covariances: np.ndarray) -> np.ndarray:
+    """Which covariances (N, d, d) are positive definite (N,) bool: positive diagonal and positive
+    `correlation_eigenvalues` (scale-free)."""
+    diagonal = np.diagonal(covariances, axis1=1, axis2=2)
+    good = (diagonal > 0.0).all(axis=1) & np.isfinite(covariances).all(axis=(1, 2))
+    good[good] = correlation_eigenvalues(covariances[good])[:, 0] > 0.0
+    return good
+
+
 def check_tracks(states: np.ndarray, covariances: np.ndarray, label: str) -> tuple[np.ndarray, np.ndarray]:
     """`states` (N, d) and `covariances` (N, d, d) as float64, checked: d in STATE_SIZES, finite, covariances
-    symmetric and positive definite. TrackInputError naming `label` (e.g. "radar 2") and the first bad track."""
+    symmetric and positive definite (`positive_definite`, whatever their scale). TrackInputError naming `label`
+    (e.g. "radar 2") and the first bad track."""
     states, covariances = np.asarray(states, dtype=float), np.asarray(covariances, dtype=float)
     if states.ndim != 2 or states.shape[1] not in STATE_SIZES:
         raise TrackInputError(f"{label}: states must be (N, d) with d in {STATE_SIZES}, got shape {states.shape}")
@@ -57,9 +81,9 @@ def check_tracks(states: np.ndarray, covariances: np.ndarray, label: str) -> tup
     asymmetric = ~np.isclose(covariances, covariances.transpose(0, 2, 1), rtol=1e-6, atol=1e-9).all(axis=(1, 2))
     if asymmetric.any():
         raise TrackInputError(f"{label}: covariance of track {int(np.argmax(asymmetric))} is not symmetric")
-    if n and (np.linalg.eigvalsh(covariances)[:, 0] <= 0.0).any():
-        first = int(np.argmax(np.linalg.eigvalsh(covariances)[:, 0] <= 0.0))
-        raise TrackInputError(f"{label}: covariance of track {first} is not positive definite")
+    definite = positive_definite(covariances)
+    if not definite.all():
+        raise TrackInputError(f"{label}: covariance of track {int(np.argmin(definite))} is not positive definite")
     return states, covariances
 
 

@@ -235,7 +235,23 @@ def test_an_output_named_like_an_input_or_the_other_output_is_refused(users, mod
     ("associate.acceleration_std_mps2", -1.0, "associate.acceleration_std_mps2 = -1.0"),
     ("associate.keep_probability", 0.99, "associate.keep_probability = 0.99: must be at least "
                                          "association.gate_probability"),
+    ("associate.max_speed_mps", 400.0, "associate.max_speed_mps = 400.0: must exceed the fastest aircraft's speed "
+                                       "(fighter: 400.0 m/s)"),
+    ("association.max_time_offset_s", -1.0, "association.max_time_offset_s = -1.0: must be in [0.0, inf]"),
 ])
 def test_a_bad_associate_param_names_the_key_and_value(key, value, named):
     with pytest.raises(ParamError, match=re.escape(named)):
         tf.make_params({key: value})
+
+
+def test_a_clock_offset_between_the_users_is_warned_of_naming_the_radar(users, models, tmp_path, caplog):
+    """The second user's time stamps 4 s late (its table's times + 4 s) place its track 800 m back along the
+    aircraft's 201 m/s: beyond the statistical gate and the keep gate (2 s, 400 m, stays under the keep gate of
+    these young tracks). The pair the method leaves is reported as a probable clock offset of the second table's
+    radar, of about 4 s; the outputs are written (exit 0)."""
+    late = rewritten(users["tracks2"], tmp_path / "late", "time_unix_s", lambda v: v + 4.0)
+    assert associate(users, models, tmp_path / "out", "statistical", (users["tracks1"], late)) == 0
+    warning = re.search(rf"{re.escape(str(late))} \(radars \[2\]\) against .* track pairs with matching velocities "
+                        r"stay unpaired at (\d+) common times.* time stamps about ([0-9.]+) s late", caplog.text)
+    assert warning, caplog.text
+    assert int(warning.group(1)) >= 3 and abs(float(warning.group(2)) - 4.0) < 0.3
