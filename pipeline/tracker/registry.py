@@ -71,14 +71,14 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
                  params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
                  young_gate: "Gate | None" = None) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
-    pre-filter distance of params, nearest neighbour per plot, the tracker's management rule and
-    its association priority (`tracker.mature_first`)."""
+    pre-filter distance of params, nearest neighbour per plot, the tracker's management rule, its
+    association priority (`tracker.mature_first`) and its revisit limit (`tracker.revisit_scans`)."""
     from pipeline.tracker.assigner import NearestPerPlot
     from pipeline.tracker.gate import RadiusGate
     from pipeline.tracker.run import Composition
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
                        params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
-                       management(params.management, params), params.mature_first)
+                       management(params.management, params), params.mature_first, params.revisit_scans)
 
 
 def _network_estimator(models: "Models") -> "NetworkEstimator":
