@@ -40,7 +40,7 @@ CONFIRMED = 1.0
 class MOfN:
     """Confirm at `m` hits within the last `n` opportunities (scans of the latest plot's radar);
     delete a confirmed track silent for max(`delete_after_s`, `delete_after_scans` scans) seconds,
-    a tentative one with no hit in `n`."""
+    a tentative one with no hit in `n`. `delete_after_scans` 0: the seconds alone, any radar."""
 
     m: int
     n: int

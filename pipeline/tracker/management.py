@@ -63,9 +63,9 @@ class ThesisWeights:
     period.
 
     The silence is max(`silence_s`, `silence_scans` x the scan period of the radar of the track's
-    latest plot) seconds: the thesis's 12 s is two scans of its 6 s radar (thesis 4.4: 10 rpm),
+    latest plot) seconds: the thesis's 12 s is two scans of its 6 s radar (10 rpm: params' radar),
     and `silence_scans` (2) keeps those two scans for a slower radar (24 s at 12 s), while a faster
-    one keeps the thesis's seconds (12 s at 4 s)."""
+    one keeps the thesis's seconds (12 s at 4 s). `silence_scans` 0: the seconds alone, any radar."""
 
     start: float
     candidate: float

@@ -23,14 +23,15 @@ window), so a track that lives for hours holds, and carries from one part of a r
 next, a few rows rather than all its plots (issue 16, item 4: memory independent of the
 recording's length).
 
-A track falls due for lowering at its last association plus the management rule's silence,
-which the rule counts in revolutions of the radar of the track's latest plot: `LiveTracks` keeps
-each track's latest radar's scan period (`scan_period`) and hands it to `silence` (a rule's
-silence after a lowering is that radar's too). It is lowered only when a plot comes later than that by more than TIME_QUANTUM_S. A plot arriving
-exactly at the boundary is offered to the track first: radar plot times are quantised (ASTERIX
-I048/140 to 1/128 s) and a track revisited one silence period later would otherwise live or die
-on which side of the boundary a rounded time falls (case 07: a radial target with one missed
-scan, its next plot exactly `silence_s` = two scans later).
+A track falls due for lowering at its last association plus the management rule's silence, which
+the rule counts in revolutions of the radar of the track's latest plot: `LiveTracks` keeps each
+track's latest radar's scan period (`scan_period`) and hands it to `silence` (the silence after
+a lowering too is that radar's). It is lowered only when a plot comes later than that by more
+than TIME_QUANTUM_S. A plot arriving exactly at the boundary is offered to the track first:
+radar plot times are quantised (ASTERIX I048/140 to 1/128 s) and a track revisited one silence
+period later would otherwise live or die on which side of the boundary a rounded time falls
+(case 07: a radial target with one missed scan, its next plot exactly `silence_s` = two scans
+later).
 
 A track's revisits are kept by radar too (`last_seen`: the time of its latest plot of each radar
 of the plot table), so that the loop can hold back a second plot of one radar within one
@@ -82,8 +83,8 @@ class LiveTracks:
     plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,), `scan_period` (S,) the scan
     period (s) of the radar of the last plot, `last_seen` (S, R) the time (s) of the latest plot
     of each of the plot table's R radars (-inf for none; columns in radar id order); `tracks` the
-    Track of each slot (None when free). S grows by doubling when every slot is taken. `cell_m`: the grid's cube
-    edge (m); `near` is exact for any distance and fastest for distances up to it. `latest_plots`:
+    Track of each slot (None when free). S grows by doubling when every slot is taken. `cell_m`:
+    the grid's cube edge (m); `near` is exact for any distance and fastest for distances up to it. `latest_plots`:
     how many of a track's latest plots its `rows` keep beside its first (what the roles read,
     `pipeline.tracker.run.Composition.latest_plots`). Raises ValueError if it is negative."""
 
@@ -139,9 +140,9 @@ class LiveTracks:
         self._column = np.searchsorted(ids, plots.radar_id)
 
     def revisited(self, slots: np.ndarray, row: int, scans: float) -> np.ndarray:
-        """Which of the tracks at `slots` (K,) took a plot of plot `row`'s radar less than `scans`
-        of that radar's revolutions before the plot (K,) bool: a second plot of one radar within
-        one revolution (a split plot, clutter beside the target) rather than its next look."""
+        """Whether each track at `slots` (K,) took a plot of plot `row`'s radar less than `scans` of
+        that radar's revolutions before the plot, (K,) bool: the plot would be its second of that
+        radar within one revolution (a split plot, clutter beside the target), not its next look."""
         column = self._column[row]
         return self.plots.time[row] - self.last_seen[slots, column] < scans * self._periods[column]
 
