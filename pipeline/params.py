@@ -236,6 +236,7 @@ class TrackerParams:
     weight_confirmed: float
     weight_step: float
     silence_s: float
+    silence_scans: float    # thesis: a track is lowered after max(silence_s, this many scans of its latest radar)
     prefilter_m: float
     young_track_plots: int
     young_track_plots_ae: int
@@ -250,9 +251,10 @@ class TrackerParams:
     management: str         # the track management rule of every run that names none (registry.MANAGEMENT)
     confirm_m: int          # m_of_n: confirmed at this many associations ...
     confirm_n: int          # ... within the last this many opportunities (scans)
-    delete_after_s: float   # m_of_n: a confirmed track silent this long (s) is deleted
-    opportunity_s: float    # m_of_n: one opportunity, the radar's scan period (s; from radar.rotation_rpm)
+    delete_after_s: float   # m_of_n: a confirmed track silent this long (s) ...
+    delete_after_scans: float  # ... and this many scans of its latest radar, whichever is longer, is deleted
     mature_first: bool      # a plot a mature track gates is not offered to young tracks (run.Composition)
+    revisit_scans: float    # a track is offered no plot of a radar within this many of its scans of the last (0: off)
     lstm_update_gate_m: float  # the LSTM update's chi-square gate never beyond this of the prediction (issue 18)
     young_window_fallback: bool  # lstm_update's young tracks also take what RadiusGate(window_m) takes (issue 27)
     refusal_warning_share: float  # `track` warns when a learned gate refused this share of the plots in the window
@@ -921,7 +923,7 @@ def _training(tree: Mapping[str, Any], windows: Windows) -> Training:
 REFERENCES = ("plots", *registry.REFERENCES)  # raw target plots; the registry's references (the oracle)
 
 
-def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> TrackerParams:
+def _tracker(tree: Mapping[str, Any], windows: Windows) -> TrackerParams:
     p = "tracker"
     tracker = TrackerParams(
         weight_start=_positive(tree, "weight_start", p),
@@ -929,6 +931,7 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         weight_confirmed=_positive(tree, "weight_confirmed", p),
         weight_step=_positive(tree, "weight_step", p),
         silence_s=_positive(tree, "silence_s", p),
+        silence_scans=_number(tree, "silence_scans", p, 0.0),
         prefilter_m=_positive(tree, "prefilter_m", p),
         young_track_plots=_integer(tree, "young_track_plots", p, 1),
         young_track_plots_ae=_integer(tree, "young_track_plots_ae", p, windows.autoencoder_length),
@@ -944,8 +947,9 @@ def _tracker(tree: Mapping[str, Any], windows: Windows, radar: Radar) -> Tracker
         confirm_m=_integer(tree, "confirm_m", p, 1),
         confirm_n=_integer(tree, "confirm_n", p, 1),
         delete_after_s=_positive(tree, "delete_after_s", p),
-        opportunity_s=radar.scan_period_s,
+        delete_after_scans=_number(tree, "delete_after_scans", p, 0.0),
         mature_first=_boolean(tree, "mature_first", p),
+        revisit_scans=_number(tree, "revisit_scans", p, 0.0, 1.0, high_open=True),
         lstm_update_gate_m=_positive(tree, "lstm_update_gate_m", p),
         young_window_fallback=_boolean(tree, "young_window_fallback", p),
         refusal_warning_share=_number(tree, "refusal_warning_share", p, 0.0, 1.0, low_open=True),
@@ -1321,7 +1325,7 @@ def parse_params(tree: Mapping[str, Any]) -> Params:
         example_routes=_integer(report, "example_routes", "report", 1),
         windows=windows,
         training=_training(_get(tree, "training", "params"), windows),
-        tracker=_tracker(_get(tree, "tracker", "params"), windows, radar),
+        tracker=_tracker(_get(tree, "tracker", "params"), windows),
         kalman=_kalman(_get(tree, "kalman", "params"), routes.splits),
         kalman_net=_kalman_net(_get(tree, "kalman_net", "params"), routes.splits),
         association=_association(_get(tree, "association", "params")),

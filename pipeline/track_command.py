@@ -27,7 +27,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import asterix_io, geodesy, io, plot_table, streamed_recording
-from pipeline.params import Params, Radar, TrackerParams
+from pipeline.params import Params, Radar
 from pipeline.plot_table import NO_SCENARIO, Plots
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
@@ -58,6 +58,8 @@ TRACK_SCHEMA = io.schema(
 TRACK_ROW_GROUP_ROWS = 65536  # rows per row group of `track`'s output: what the writer holds (about 200 B a row)
 COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-6:]  # the position's ECEF covariance, upper triangle; null when the
 COVARIANCE_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # estimator gives none (the networks)
+SCAN_SLACK = 1.5  # scans a new track must outlive (`warn_short_silences`): half a revolution of slack for the
+                  # plot's place in the scan, as M-of-N's miss (`pipeline.tracker.m_of_n`)
 
 
 def covariance_columns(covariances: np.ndarray) -> dict[str, pa.Array]:
@@ -66,11 +68,22 @@ def covariance_columns(covariances: np.ndarray) -> dict[str, pa.Array]:
             for name, (i, j) in zip(COVARIANCE_COLUMNS, COVARIANCE_ENTRIES)}
 
 
-def recording_tracker_params(tracker: TrackerParams, radars: Mapping[int, Radar]) -> TrackerParams:
-    """The tracker's params for a recording of `radars`: M-of-N's opportunity is the recording's own
-    antenna scan (the shortest scan period of its radars: a track seen by several radars can be hit
-    that often), not the scan of params' `radar`, which describes the simulated one."""
-    return dataclasses.replace(tracker, opportunity_s=min(radar.scan_period_s for radar in radars.values()))
+def warn_short_silences(management: TrackManagement, rule: str, radars: Mapping[int, Radar]) -> list[int]:
+    """Warn for each radar of `radars` whose new tracks the management rule `management` (named
+    `rule`) lowers before SCAN_SLACK of the radar's scans: a radar sees an aircraft once a
+    revolution, a little more than a scan apart for one moving clockwise in azimuth (12.07 s at
+    12 s, case 25), so such a radar's tracks could not live to their second plot. Returns those
+    radars' ids (sorted)."""
+    short = []
+    for radar_id, radar in sorted(radars.items()):
+        silence = management.silence(management.start, radar.scan_period_s)
+        if silence < SCAN_SLACK * radar.scan_period_s:
+            short.append(radar_id)
+            log.warning("track: radar %d turns every %.6g s, but track management %r lowers a new track after "
+                        "%.6g s of silence, less than %.6g of its scans: its tracks may never be confirmed (raise "
+                        "tracker.silence_s or tracker.silence_scans)", radar_id, radar.scan_period_s, rule, silence,
+                        SCAN_SLACK)
+    return short
 
 
 def track_recording(plots: Plots, method: str, window_m: float, params: Params, models_dir: Path) -> pa.Table:
@@ -90,16 +103,17 @@ def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapp
                   ) -> Iterator[tuple[int, pa.Table, bool]]:
     """Track each scenario, given as its plots in time-ordered chunks, with `method`: the track
     updates (TRACK_SCHEMA) of each chunk in turn, with its scenario id and whether it is the
-    scenario's first. `radars`: every radar of the recording. Each scenario's counts of plots its
+    scenario's first. `radars`: every radar of the recording; a radar too slow for the management
+    rule's silence is warned of first (`warn_short_silences`). Each scenario's counts of plots its
     learned gate refused (`pipeline.tracker.refusals`; none for a method without one) are added to
     `refusals` once the scenario is tracked."""
     models = load_models(models_dir, params, [method])
-    tracker_params = recording_tracker_params(params.tracker, radars)
-    management = registry.management(tracker_params.management, tracker_params)
+    management = registry.management(params.tracker.management, params.tracker)
+    warn_short_silences(management, params.tracker.management, radars)
     sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in radars.items()}
     for scenario_id, chunks in scenarios:
         seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]
-        tracker = registry.compose(method, models, tracker_params, window_m, seed)
+        tracker = registry.compose(method, models, params.tracker, window_m, seed)
         for number, updates in enumerate(track_chunks(chunks, tracker)):
             yield scenario_id, _track_table(updates, scenario_id, sites, management), number == 0
         if tracker.refusals is not None:

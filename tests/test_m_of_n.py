@@ -2,8 +2,8 @@
 parts of `tests/test_tracker_loop.py` (no networks), and a long orbit tracked by the tuned IMM
 under both rules (`tracker.management`).
 
-M = 3, N = 5, one opportunity = one 6 s scan: a tentative track records a miss 9 s after its last
-hit, then every 6 s.
+M = 3, N = 5, one opportunity = one 6 s scan (the plots' radar's): a tentative track records a
+miss 9 s after its last hit, then every 6 s.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from pipeline.tracker_metrics import markdown_table
 from tests import tracker_fixtures as tf
 from tests.test_tracker_loop import composition, plots
 
-RULE = MOfN(m=3, n=5, opportunity_s=tf.SCAN_S, delete_after_s=20.0)
+RULE = MOfN(m=3, n=5, delete_after_s=20.0, delete_after_scans=3.25)
 # the default run's tuned filters (models/kalman_tuned.json of the committed run, rounded)
 TUNED = {"cv": FilterSettings("cv", (20.22,), 112.4, 10.0, 0.05, 0.9),
          "ca": FilterSettings("ca", (24.36,), 167.2, 10.0, 0.05, 0.9),

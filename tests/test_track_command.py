@@ -23,7 +23,7 @@ import pytest
 from pipeline import (association_net, association_report, baselines, cli, external_sort, geodesy, io, model_store,
                       plot_table, streamed_recording, track_tables)
 from pipeline import track_command as track_command_module
-from pipeline.track_command import recording_tracker_params, track_recording
+from pipeline.track_command import track_recording
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from tests import tracker_fixtures as tf
@@ -542,16 +542,21 @@ def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_pat
     assert summary["skipped"] == {"duplicate plot": plots.num_rows} and summary["plots_tracked"] == plots.num_rows
 
 
-def test_m_of_n_counts_opportunities_in_the_recordings_own_scans(params):
-    """M-of-N's opportunity is the recording's antenna scan, not params' radar's: 10 s for a radar
-    that turns at 6 rpm, the shorter scan when two radars are tracked together."""
-    slow = tf.radar_at(params.radar, *SECOND_SITE)
-    slow = dataclasses.replace(slow, rotation_rpm=6.0)
-    assert params.tracker.opportunity_s == pytest.approx(params.radar.scan_period_s)
-    assert recording_tracker_params(params.tracker, {1: slow}).opportunity_s == pytest.approx(10.0)
-    both = recording_tracker_params(params.tracker, {1: slow, 2: params.radar})
-    assert both.opportunity_s == pytest.approx(params.radar.scan_period_s)
-    assert dataclasses.replace(both, opportunity_s=params.tracker.opportunity_s) == params.tracker
+@pytest.mark.parametrize("changes, warned", [({}, False), ({"tracker.management": "m_of_n",
+                                                                "tracker.silence_scans": 0.0}, False),
+                                              ({"tracker.silence_scans": 0.0}, True)])
+def test_a_radar_too_slow_for_the_silence_is_warned_of_by_its_id(params, tmp_path, filters_only, caplog, changes,
+                                                                 warned):
+    """Radar 2 turning every 12 s: with the silence in seconds alone (tracker.silence_scans 0: 12 s,
+    less than 1.5 of its scans) `track` warns, naming radar 2 and its period, and still tracks
+    (exit 0); radar 1 (6 s) is not named. Under the default params (silence 2 scans, 24 s there) and
+    under M-of-N (1.5 scans) no radar is named."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(4))
+    radars = with_radar_column(radars, "scan_period_s", [None, 12.0])
+    assert track_command(tmp_path, filters_only, "kalman_cv", plots, radars, changes) == 0
+    assert ("radar 2 turns every 12 s, but track management 'thesis' lowers a new track after 12 s"
+            in caplog.text) == warned
+    assert "radar 1 turns" not in caplog.text
 
 
 @pytest.mark.parametrize("method", ["imm", "kalman_cv_gnn"])

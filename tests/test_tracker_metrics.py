@@ -36,7 +36,7 @@ from pipeline import compare_stage
 from pipeline.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
 from tests.project import default_params_tree
 
-RULE = ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2, silence_s=12.0)
+RULE = ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2, silence_s=12.0, silence_scans=2.0)
 # The weights the tracker reaches by adding 0.2 in floating point (0.4 + 0.2 = 0.6000000000000001).
 W = [0.4, 0.4 + 0.2, 0.4 + 0.2 + 0.2, min(0.4 + 0.2 + 0.2 + 0.2, 1.0)]
 

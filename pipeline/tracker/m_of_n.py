@@ -4,17 +4,21 @@ The usual alternative to the thesis's weights (Blackman & Popoli, "Design and An
 Modern Tracking Systems", Artech House 1999, track confirmation: sliding-window M/N
 confirmation; deletion after a time without an update, as Stone Soup's `UpdateTimeDeleter`):
 
-- **Opportunity.** One antenna scan (`opportunity_s`, seconds: the params' radar's scan
-  period). A track's start and each association fill an opportunity with a hit; a tentative
-  track silent for 1.5 opportunities since its last hit, or one more opportunity since its last
-  miss, records a miss (half a scan of slack for the plot's place in the scan).
+- **Opportunity.** One antenna scan of the radar of the track's latest plot (its scan period,
+  seconds, from the plot table: `pipeline.tracker.management`), so the radars of one recording
+  each count in their own revolutions. A track's start and each association fill an
+  opportunity with a hit; a tentative track silent for 1.5 opportunities since its last hit, or
+  one more opportunity since its last miss, records a miss (half a scan of slack for the plot's
+  place in the scan).
 - **Confirmation.** A tentative track is confirmed by the association that makes `m` hits
   within its last `n` opportunities (the start counts as one), and not before; a confirmed
   track stays confirmed until deleted.
 - **Deletion.** A tentative track with no hit in its last `n` opportunities is deleted; a
-  confirmed track silent for longer than `delete_after_s` seconds is deleted (a plot arriving
-  exactly `delete_after_s` after the last hit, to the time quantum, is still offered to it:
-  `pipeline.tracker.tracks`).
+  confirmed track silent for longer than max(`delete_after_s`, `delete_after_scans` scans) is
+  deleted (a plot arriving exactly then, to the time quantum, is still offered to it:
+  `pipeline.tracker.tracks`). The params' 20 s is 3.33 scans of the 6 s radar; 3.25 scans keep
+  the 20 s there and for every faster radar, and let a confirmed track of a slower one survive
+  two missed scans as it does at 6 s (39 s at 12 s).
 
 The weight (the update table's `weight` column) is the track's hits of its last `n`
 opportunities as binary digits, the latest the highest, scaled into [0, 1): a tentative
@@ -34,17 +38,18 @@ CONFIRMED = 1.0
 
 @dataclass(frozen=True)
 class MOfN:
-    """Confirm at `m` hits within the last `n` opportunities of `opportunity_s` seconds; delete a
-    confirmed track silent for `delete_after_s` seconds, a tentative one with no hit in `n`."""
+    """Confirm at `m` hits within the last `n` opportunities (scans of the latest plot's radar);
+    delete a confirmed track silent for max(`delete_after_s`, `delete_after_scans` scans) seconds,
+    a tentative one with no hit in `n`. `delete_after_scans` 0: the seconds alone, any radar."""
 
     m: int
     n: int
-    opportunity_s: float
     delete_after_s: float
+    delete_after_scans: float = 0.0
 
     @classmethod
     def from_params(cls, params: TrackerParams) -> "MOfN":
-        return cls(params.confirm_m, params.confirm_n, params.opportunity_s, params.delete_after_s)
+        return cls(params.confirm_m, params.confirm_n, params.delete_after_s, params.delete_after_scans)
 
     @property
     def start(self) -> float:
@@ -69,11 +74,11 @@ class MOfN:
         hits = self._hits(weight) >> 1
         return self._weight(hits) if hits else None
 
-    def silence(self, weight: float) -> float:
+    def silence(self, weight: float, scan_period_s: float) -> float:
         if weight >= CONFIRMED:
-            return self.delete_after_s
+            return max(self.delete_after_s, self.delete_after_scans * scan_period_s)
         latest_was_hit = self._hits(weight) >> (self.n - 1)
-        return 1.5 * self.opportunity_s if latest_was_hit else self.opportunity_s
+        return 1.5 * scan_period_s if latest_was_hit else scan_period_s
 
     def confirmed(self, weights: np.ndarray) -> np.ndarray:
         return np.asarray(weights) >= CONFIRMED

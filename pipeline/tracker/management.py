@@ -2,9 +2,19 @@
 initiator and deleter; thesis 4.4).
 
 A rule works on one number per track, its weight, and one clock per track: a track with no
-association and no weight change for `silence(weight)` seconds is lowered (`lowered`), which
-may delete it. `pipeline.tracker.tracks.LiveTracks` keeps the weights and the clocks and asks the
-rule; the loop never reads a weight itself.
+association and no weight change for `silence(weight, scan_period_s)` seconds is lowered
+(`lowered`), which may delete it. `pipeline.tracker.tracks.LiveTracks` keeps the weights and the
+clocks and asks the rule; the loop never reads a weight itself.
+
+A track's life is counted in revolutions of the radar of its latest plot, not in seconds alone:
+`scan_period_s` is that radar's scan period (the plot table's `Plots.radars[radar_id]`), so one
+recording may hold radars of different periods. A target is seen once per revolution, and a
+target moving clockwise in azimuth a little later each time (12.07 s apart for a 12 s radar),
+so a silence fixed in seconds that spans two scans of a 6 s radar does not span one of a 12 s
+radar, and every tentative track of that radar would die before its second plot (case 25). The
+revisit intervals of several sensors are a known need of deleters (Stone Soup issue 610, PR 623:
+time-step deleters); a radar display counts target persistence in antenna turns (BR24radar_pi
+issue 36).
 
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
 alternative (M-of-N confirmation, time-out deletion). `pipeline.tracker.registry` names both
@@ -25,13 +35,14 @@ EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this toler
 
 class TrackManagement(Protocol):
     """Weights of a track over its life: `start` for a new one, `associated(w)` after an
-    association, `lowered(w)` after a silence of `silence(w)` seconds at weight w (None: delete
-    the track); `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)`
-    names one."""
+    association, `lowered(w)` after a silence of `silence(w, scan_period_s)` seconds at weight w
+    whose latest plot came from a radar of scan period `scan_period_s` (s) (None: delete the
+    track); `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)` names
+    one."""
 
     start: float
 
-    def silence(self, weight: float) -> float: ...
+    def silence(self, weight: float, scan_period_s: float) -> float: ...
 
     def associated(self, weight: float) -> float: ...
 
@@ -46,27 +57,33 @@ class TrackManagement(Protocol):
 class ThesisWeights:
     """The thesis's weights (`tracker.weight_*`): a track starts at `start` (0.4), is a candidate at
     `candidate` (0.8) and confirmed at `confirmed_weight` (1.0); each association adds `step`
-    (0.2, capped at the confirmed weight); a silence of `silence_s` (12 s) takes `step` off. A
-    track lowered while at the candidate weight is deleted (thesis). The thesis does not say what
-    happens to a track lowered at or below the start weight: here it is deleted too, so clutter
-    tracks die after one silence period."""
+    (0.2, capped at the confirmed weight); a silence takes `step` off. A track lowered while at the
+    candidate weight is deleted (thesis). The thesis does not say what happens to a track lowered
+    at or below the start weight: here it is deleted too, so clutter tracks die after one silence
+    period.
+
+    The silence is max(`silence_s`, `silence_scans` x the scan period of the radar of the track's
+    latest plot) seconds: the thesis's 12 s is two scans of its 6 s radar (10 rpm: params' radar),
+    and `silence_scans` (2) keeps those two scans for a slower radar (24 s at 12 s), while a faster
+    one keeps the thesis's seconds (12 s at 4 s). `silence_scans` 0: the seconds alone, any radar."""
 
     start: float
     candidate: float
     confirmed_weight: float
     step: float
     silence_s: float
+    silence_scans: float = 0.0
 
     @classmethod
     def from_params(cls, params: TrackerParams) -> "ThesisWeights":
         return cls(params.weight_start, params.weight_candidate, params.weight_confirmed, params.weight_step,
-                   params.silence_s)
+                   params.silence_s, params.silence_scans)
 
     def associated(self, weight: float) -> float:
         return min(weight + self.step, self.confirmed_weight)
 
-    def silence(self, weight: float) -> float:
-        return self.silence_s
+    def silence(self, weight: float, scan_period_s: float) -> float:
+        return max(self.silence_s, self.silence_scans * scan_period_s)
 
     def lowered(self, weight: float) -> float | None:
         if abs(weight - self.candidate) < EPSILON or weight <= self.start + EPSILON:

@@ -71,10 +71,11 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
                  params: "TrackerParams", assigner: "Assigner | None" = None, prefilter_m: float | None = None,
                  young_gate: "Gate | None" = None, learned: tuple[bool, bool] = (False, False)) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
-    pre-filter distance of params, nearest neighbour per plot, the tracker's management rule and
-    its association priority (`tracker.mature_first`). `learned`: whether its (young, mature) gate
-    is learned, sized by a network's output; such a composition counts the plots its learned gates
-    refuse that the window would take (`pipeline.tracker.refusals`)."""
+    pre-filter distance of params, nearest neighbour per plot, the tracker's management rule, its
+    association priority (`tracker.mature_first`) and its revisit limit (`tracker.revisit_scans`).
+    `learned`: whether its (young, mature) gate is learned, sized by a network's output; such a
+    composition counts the plots its learned gates refuse that the window would take
+    (`pipeline.tracker.refusals`)."""
     from pipeline.tracker.assigner import NearestPerPlot
     from pipeline.tracker.gate import RadiusGate
     from pipeline.tracker.refusals import RefusalWatch
@@ -82,7 +83,8 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
                        params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
                        management(params.management, params), params.mature_first,
-                       RefusalWatch(window_m, *learned) if any(learned) else None)
+                       refusals=RefusalWatch(window_m, *learned) if any(learned) else None,
+                       revisit_scans=params.revisit_scans)
 
 
 def _network_estimator(models: "Models") -> "NetworkEstimator":

@@ -60,7 +60,9 @@ class Composition:
     `label` and `young_label` name, in the updates' `association` column, which gate won.
     `mature_first`: a plot inside a mature track's gate is not offered to young tracks (see
     `_candidates`). `refusals`: counts, for a composition with a learned gate, the plots it refused
-    that the window would have taken (None: none counted)."""
+    that the window would have taken (None: none counted). `revisit_scans`: a track that took a plot
+    of a radar is not offered another plot of that radar within this many of its scans (0: it is;
+    see `_candidates`)."""
 
     label: str
     estimator: Estimator
@@ -73,6 +75,7 @@ class Composition:
     management: TrackManagement
     mature_first: bool
     refusals: RefusalWatch | None = None
+    revisit_scans: float = 0.0
 
     @property
     def pairwise(self) -> bool:
@@ -276,8 +279,17 @@ def _candidates(live: LiveTracks, rows: range, tracker: Composition) -> list[Can
     Popoli (1999), established tracks before tentative ones. Without it one plot outside an established track's
     gate (a manoeuvre, a plot with a large error) starts a track that is nearer to the next plot
     by the young-track radius's measure, takes it, and the established track starves: one aircraft
-    becomes two tracks."""
+    becomes two tracks.
+
+    With `revisit_scans`, a track is no candidate of a plot of a radar whose plot it took less than
+    that many of the radar's scans before (`LiveTracks.revisited`): a radar sees a target once a
+    revolution, so at 0.5 a track takes at most one plot per revolution of each radar whatever the
+    gates and the assigner (nearest neighbour would give a track a clutter plot beside its own of
+    the same scan; global nearest neighbour's batches hold one plot per track, but a scan's first
+    plots and the previous scan's last are in different batches)."""
     near = [live.near(row, tracker.prefilter_m) for row in rows]
+    if tracker.revisit_scans:
+        near = [slots[~live.revisited(slots, row, tracker.revisit_scans)] for slots, row in zip(near, rows)]
     counts = [len(slots) for slots in near]
     if not any(counts):  # most plots: clutter far from every track
         return [NO_CANDIDATES] * len(near)

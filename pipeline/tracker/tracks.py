@@ -23,12 +23,19 @@ window), so a track that lives for hours holds, and carries from one part of a r
 next, a few rows rather than all its plots (issue 16, item 4: memory independent of the
 recording's length).
 
-A track falls due for lowering at its last association plus the management rule's silence; it
-is lowered only when a plot comes later than that by more than TIME_QUANTUM_S. A plot arriving
-exactly at the boundary is offered to the track first: radar plot times are quantised (ASTERIX
-I048/140 to 1/128 s) and a track revisited one silence period later would otherwise live or die
-on which side of the boundary a rounded time falls (case 07: a radial target with one missed
-scan, its next plot exactly `silence_s` = two scans later).
+A track falls due for lowering at its last association plus the management rule's silence, which
+the rule counts in revolutions of the radar of the track's latest plot: `LiveTracks` keeps each
+track's latest radar's scan period (`scan_period`) and hands it to `silence` (the silence after
+a lowering too is that radar's). It is lowered only when a plot comes later than that by more
+than TIME_QUANTUM_S. A plot arriving exactly at the boundary is offered to the track first:
+radar plot times are quantised (ASTERIX I048/140 to 1/128 s) and a track revisited one silence
+period later would otherwise live or die on which side of the boundary a rounded time falls
+(case 07: a radial target with one missed scan, its next plot exactly `silence_s` = two scans
+later).
+
+A track's revisits are kept by radar too (`last_seen`: the time of its latest plot of each radar
+of the plot table), so that the loop can hold back a second plot of one radar within one
+revolution (`revisited`).
 """
 
 from __future__ import annotations
@@ -73,9 +80,11 @@ class LiveTracks:
     """The tracks alive now over the plots `plots`, managed by `management`.
 
     Arrays by slot: `position` (S, 3) the last estimated position, `last_plot` (S, 3) the last
-    plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,); `tracks` the Track of each
-    slot (None when free). S grows by doubling when every slot is taken. `cell_m`: the grid's cube
-    edge (m); `near` is exact for any distance and fastest for distances up to it. `latest_plots`:
+    plot's position, `weight` (S,), `plot_count` (S,), `alive` (S,), `scan_period` (S,) the scan
+    period (s) of the radar of the last plot, `last_seen` (S, R) the time (s) of the latest plot
+    of each of the plot table's R radars (-inf for none; columns in radar id order); `tracks` the
+    Track of each slot (None when free). S grows by doubling when every slot is taken. `cell_m`:
+    the grid's cube edge (m); `near` is exact for any distance and fastest for distances up to it. `latest_plots`:
     how many of a track's latest plots its `rows` keep beside its first (what the roles read,
     `pipeline.tracker.run.Composition.latest_plots`). Raises ValueError if it is negative."""
 
@@ -90,6 +99,10 @@ class LiveTracks:
         self.weight = np.zeros(capacity)
         self.plot_count = np.zeros(capacity, dtype=np.int64)
         self.alive = np.zeros(capacity, dtype=bool)
+        self.scan_period = np.zeros(capacity)
+        self._radar_ids = np.empty(0, dtype=np.int64)
+        self.last_seen = np.empty((capacity, 0))
+        self._index_radars(plots)
         self._generation = [0] * capacity
         self._due: list[tuple[float, int, int]] = []  # (time the slot falls due, slot, generation)
         self._free = list(range(capacity - 1, -1, -1))
@@ -109,8 +122,35 @@ class LiveTracks:
         self.weight = np.concatenate([self.weight, np.zeros(capacity)])
         self.plot_count = np.concatenate([self.plot_count, np.zeros(capacity, dtype=np.int64)])
         self.alive = np.concatenate([self.alive, np.zeros(capacity, dtype=bool)])
+        self.scan_period = np.concatenate([self.scan_period, np.zeros(capacity)])
+        self.last_seen = np.vstack([self.last_seen, np.full((capacity, self.last_seen.shape[1]), -np.inf)])
         self._generation.extend([0] * capacity)
         self._free = list(range(2 * capacity - 1, capacity - 1, -1))
+
+    def _index_radars(self, plots: Plots) -> None:
+        """Columns of `last_seen` for every radar of `plots` (radar id order; a radar new to the
+        tracks, in a later part of a recording, gets a column of -inf), each plot's column
+        (`_column`, by row) and each column's scan period (`_periods`, s)."""
+        ids = np.union1d(self._radar_ids, np.array(sorted(plots.radars), dtype=np.int64))
+        if len(ids) != len(self._radar_ids):
+            seen = np.full((len(self.tracks), len(ids)), -np.inf)
+            seen[:, np.searchsorted(ids, self._radar_ids)] = self.last_seen
+            self._radar_ids, self.last_seen = ids, seen
+        self._periods = np.array([plots.radars[int(radar_id)].scan_period_s for radar_id in ids.tolist()])
+        self._column = np.searchsorted(ids, plots.radar_id)
+
+    def revisited(self, slots: np.ndarray, row: int, scans: float) -> np.ndarray:
+        """Whether each track at `slots` (K,) took a plot of plot `row`'s radar less than `scans` of
+        that radar's revolutions before the plot, (K,) bool: the plot would be its second of that
+        radar within one revolution (a split plot, clutter beside the target), not its next look."""
+        column = self._column[row]
+        return self.plots.time[row] - self.last_seen[slots, column] < scans * self._periods[column]
+
+    def _seen(self, slot: int, row: int) -> None:
+        """Plot `row` joined `slot`: its radar's scan period and revisit time."""
+        column = self._column[row]
+        self.scan_period[slot] = self._periods[column]
+        self.last_seen[slot, column] = self.plots.time[row]
 
     def _key(self, position: np.ndarray) -> int:
         """The key of the cube holding `position` (3,) m."""
@@ -171,6 +211,7 @@ class LiveTracks:
         for track in live:
             track.rows = np.searchsorted(kept, track.rows).tolist()
         self.plots = plot_table.joined([self.plots.take(kept), plots])
+        self._index_radars(self.plots)
         return len(kept)
 
     def start(self, row: int) -> int:
@@ -185,9 +226,15 @@ class LiveTracks:
         self.weight[slot] = self.management.start
         self.plot_count[slot] = 1
         self.alive[slot] = True
-        self._schedule(slot, self.plots.time[row] + self.management.silence(self.weight[slot]))
+        self.last_seen[slot] = -np.inf
+        self._seen(slot, row)
+        self._schedule(slot, self.plots.time[row] + self._silence(slot))
         self._place(slot)
         return slot
+
+    def _silence(self, slot: int) -> float:
+        """The management rule's silence (s) for `slot` at its weight and its latest radar's scan."""
+        return self.management.silence(self.weight[slot], self.scan_period[slot])
 
     def _schedule(self, slot: int, due: float) -> None:
         self._generation[slot] += 1
@@ -207,7 +254,8 @@ class LiveTracks:
         self.last_plot[slot] = self.plots.position[row]
         self.weight[slot] = self.management.associated(self.weight[slot])
         self.plot_count[slot] += 1
-        self._schedule(slot, self.plots.time[row] + self.management.silence(self.weight[slot]))
+        self._seen(slot, row)
+        self._schedule(slot, self.plots.time[row] + self._silence(slot))
 
     def holds(self, slot: int, track_id: int) -> bool:
         """Whether `slot` still holds track `track_id` (not deleted, not reused)."""
@@ -227,7 +275,7 @@ class LiveTracks:
                 removed.append(self._remove(slot))
                 continue
             self.weight[slot] = weight
-            self._schedule(slot, due + self.management.silence(weight))
+            self._schedule(slot, due + self._silence(slot))
         return removed
 
     def _remove(self, slot: int) -> Track:
