@@ -301,7 +301,8 @@ def test_a_track_tables_float32_time_is_refused_by_its_reader(params, tmp_path, 
     pq.write_table(with_type(pq.read_table(tmp_path / "tracks.parquet"), "time_unix_s", pa.float32()), tracks)
     with pytest.raises(io.InputError, match=r"float32.parquet: column 'time_unix_s' has type float, expected "
                                             r"double \(a float32 holds a present-day Unix time only to 128 s"):
-        track_tables.read_track_table(tracks, tmp_path / "recording" / "radar.parquet")
+        track_tables.read_track_table(tracks, tmp_path / "recording" / "radar.parquet",
+                                      params.associate.max_speed_mps)
 
 
 def test_float32_measurements_are_read_and_float16_or_rounded_float_ids_are_refused(params, tmp_path):
