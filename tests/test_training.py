@@ -623,3 +623,26 @@ def test_a_training_that_goes_nan_exits_2_writes_nothing_and_registers_nothing(c
     [run] = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
     assert run.info.run_name == "train_predictor" and run.info.status == "FAILED"
     assert client.search_model_versions(f"name = '{registered_name(EXPERIMENT, 'predictor')}'") == []
+
+
+def test_a_store_removed_during_training_costs_no_model_and_ends_in_a_named_error(chain, tmp_path, caplog,
+                                                                                   local_store, monkeypatch):
+    """The SQLite store deleted once the run is open (its writes then fail): each write is retried, the
+    training goes on and writes its model and reports, and the command exits 2 naming the store, without
+    a traceback."""
+    real_train = train_stage.train
+
+    def remove_the_store_then_train(*arguments, **keywords):
+        local_store.unlink()
+        return real_train(*arguments, **keywords)
+
+    monkeypatch.setattr(train_stage, "train", remove_the_store_then_train)
+    monkeypatch.setattr("pipeline.experiment_tracking.LOCAL_STORE_BACKOFF_S", 0.01)
+    monkeypatch.chdir(tmp_path)
+    code, log = train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)
+    assert code == 2
+    assert f"MLflow tracking store 'sqlite:///{local_store}' failed while logging" in log
+    assert f"{tmp_path / 'models' / 'predictor.pt'} and the reports written" in log
+    assert load_model(tmp_path / "models" / "predictor.pt", expected_kind="predictor")
+    assert (tmp_path / "reports" / "models" / "predictor.json").is_file()
+    assert "Traceback" not in log
