@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import DataLoader
 
-from pipeline import model_store, training  # noqa: F401  (training: Lightning's logging set up as elsewhere)
+from pipeline import model_store, training  # training: also Lightning's logging set up as elsewhere
 from pipeline.scene_tensor import pair_features, scene_tensor
 
 log = logging.getLogger("pipeline")
@@ -218,8 +218,12 @@ class AssociationTraining(L.LightningModule):
         self._pairs += len(labels)
         return loss
 
+    def epoch_train_loss(self) -> float:
+        """The epoch's mean binary cross-entropy per pair so far."""
+        return self._loss_sum / max(self._pairs, 1)
+
     def on_train_epoch_end(self) -> None:
-        loss, accuracy = self._loss_sum / max(self._pairs, 1), self._right / max(self._pairs, 1)
+        loss, accuracy = self.epoch_train_loss(), self._right / max(self._pairs, 1)
         self.epoch_losses.append(loss)
         self.log_dict({"association.train_loss": loss, "association.pair_accuracy": accuracy})
         log.info("train_association: epoch %d/%d, loss %.4f, pair decisions right %.4f, %.0f s",
@@ -232,10 +236,13 @@ class AssociationTraining(L.LightningModule):
 def train(model: AssociationNet, make_epoch: Callable[[int], list[SceneInputs]], config: TrainConfig,
           logger: L.pytorch.loggers.Logger | bool = False) -> tuple[list[float], float]:
     """Train `model` in place with Lightning's Trainer on CPU; per-epoch mean losses and the seconds it took.
-    Deterministic for a seed (the scenes come from `make_epoch`, the batches in order)."""
+    Deterministic for a seed (the scenes come from `make_epoch`, the batches in order). TrainingDiverged when
+    the loss or a weight goes non-finite (`training.FiniteTraining`)."""
     L.seed_everything(config.seed, workers=True, verbose=False)
     module = AssociationTraining(model, config)
     trainer = L.Trainer(max_epochs=config.epochs, accelerator="cpu", devices=1, logger=logger,
+                        callbacks=[training.FiniteTraining("the association network", config.learning_rate,
+                                                           every_batch=True)],
                         deterministic=config.deterministic, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0,
                         reload_dataloaders_every_n_epochs=1)

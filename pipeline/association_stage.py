@@ -19,20 +19,22 @@ log = logging.getLogger("pipeline")
 
 
 def run_train_association(params: Params, models_dir: Path, reports_dir: Path) -> None:
-    from lightning.pytorch.loggers import MLFlowLogger
     import torch
+
+    from pipeline.tracking_logger import TrainingLogger
 
     a = params.association
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment, "train_association")
     torch.set_num_threads(params.training.threads)
-    logger = MLFlowLogger(experiment_name=params.training.experiment, run_name="train_association", tracking_uri=uri,
-                          tags={**experiment_tracking.run_tags("train_association"),
-                                **experiment_tracking.session_tags(params),
-                                "mlflow.source.name": "python -m pipeline train-association"})
+    logger = TrainingLogger(uri, experiment_name=params.training.experiment, run_name="train_association",
+                            tags={**experiment_tracking.run_tags("train_association"),
+                                  **experiment_tracking.session_tags(params),
+                                  "mlflow.source.name": "python -m pipeline train-association"})
+    experiment_tracking.write_to_store(uri, "starting the run", lambda: logger.run_id)
     log.info("train_association: %d epochs of %d fresh scenes, MLflow run %s in %s", a.epochs, a.scenes_per_epoch,
              logger.run_id, uri)
-    try:
+    with experiment_tracking.ended_run(logger, f"{models_dir / 'association_net.pt'} and the reports"):
         logger.log_hyperparams({f"association.{key}": value for key, value in asdict(a).items()})
         torch.manual_seed(a.seed)  # the initial weights: the same for a seed, whatever ran before in the process
         model = association_net.AssociationNet(association_report.network_config(a))
@@ -51,11 +53,7 @@ def run_train_association(params: Params, models_dir: Path, reports_dir: Path) -
                                for b, row in report["by_bias_m"].items() for m, v in row["methods"].items()}})
         for path in (models_dir / "association_net.pt", reports_dir / "association.json",
                      reports_dir / "association_bias.png"):
-            logger.experiment.log_artifact(logger.run_id, str(path))
-    except BaseException:
-        logger.experiment.set_terminated(logger.run_id, "FAILED")
-        raise
-    logger.finalize("success")
+            logger.log_artifact(path)
     log.info("train_association: %.0f s of training; seed setting accuracy %s (seed: %.1f %%)", seconds,
              ", ".join(f"{m} {v['accuracy']:.3f}" for m, v in seed_setting.items()),
              100 * association_report.SEED_ACCURACY)

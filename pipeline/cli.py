@@ -10,7 +10,7 @@ import sys
 from datetime import date
 from pathlib import Path
 
-from pipeline.io import InputError
+from pipeline.io import InputError, TrainingDiverged
 from pipeline.params import ParamError, load_params
 from pipeline.experiment_tracking import TrackingError
 from pipeline.routes import RouteGenerationError
@@ -328,6 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.quiet)
     try:
         return args.handler(args) or 0
-    except (ParamError, InputError, RouteGenerationError, TrackingError, TuningError, UnknownMethod) as error:
+    except (ParamError, InputError, RouteGenerationError, TrackingError, TrainingDiverged, TuningError,
+            UnknownMethod) as error:
         log.error("%s", error)
         return 2

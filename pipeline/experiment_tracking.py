@@ -29,6 +29,14 @@ gone; an experiment that already exists). Stages on one local store take turns f
 step, under a lock on the store's folder, and an experiment another stage created meanwhile is
 used as it is.
 
+A store that goes away during a stage (a SQLite file removed or locked, a server that stops
+answering) does not cost the stage its outputs. Every write of a run is retried a bounded number of
+times (`write_to_store`: a local store `LOCAL_STORE_ATTEMPTS` times; a server by MLflow's own HTTP
+retries, MLFLOW_HTTP_REQUEST_MAX_RETRIES and MLFLOW_HTTP_REQUEST_TIMEOUT, `RUN_HTTP_SETTINGS` unless
+set); when one still fails, a warning names the store and the run's later writes are skipped
+(`TrainingLogger`), the training goes on and writes its model and reports (atomically, as always),
+and the stage then ends with a TrackingError naming the URI and the outputs written (exit 2).
+
 What the UI groups by: every run is tagged `pipeline.session`, the same for every stage of one
 `dvc exp run` (DVC's experiment name, which DVC passes to the stages in DVC_EXP_NAME) and, for a
 plain `dvc repro` or a stage run by hand, for every stage of the same code and params
@@ -49,19 +57,21 @@ import logging
 import os
 import socket
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote, urlparse
 from urllib.request import pathname2url
 
 from pipeline.io import InputError, process_alive
 
 if TYPE_CHECKING:
-    from lightning.pytorch.loggers import MLFlowLogger
     from mlflow import ActiveRun, MlflowClient
+
+    from pipeline.tracking_logger import TrainingLogger
 
     from pipeline.params import Params
 
@@ -73,8 +83,51 @@ SESSION_TAG = "pipeline.session"
 DVC_EXPERIMENT_TAG = "dvc.experiment"
 
 
+LOCAL_STORE_ATTEMPTS = 3       # tries of a write to a SQLite or file store (a lock held by another process) ...
+LOCAL_STORE_BACKOFF_S = 1.0    # ... waiting this, then twice this, between them
+CHECK_HTTP_SETTINGS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": "10"}  # fail fast
+RUN_HTTP_SETTINGS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "3", "MLFLOW_HTTP_REQUEST_TIMEOUT": "30"}  # 2, 4, 8 s apart
+
+
 class TrackingError(RuntimeError):
     """The MLflow tracking store cannot be used; the message names the URI."""
+
+
+def _first_line(error: BaseException) -> str:
+    return f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+
+
+MLFLOW_SQL_LOGGER = "mlflow.store.db.utils"  # logs every failed SQL statement with its traceback
+
+
+@contextmanager
+def _quiet(name: str) -> Iterator[None]:
+    """The logger `name` silent for the block: the failure is reported once, by the caller."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def write_to_store(uri: str, what: str, call: Callable[..., Any], *arguments: Any, **keywords: Any) -> Any:
+    """`call(*arguments, **keywords)`, a write to the store at `uri`, retried: a local store's up to
+    LOCAL_STORE_ATTEMPTS times, 1 s then 2 s apart; a server's once (MLflow retries its HTTP requests
+    itself, `RUN_HTTP_SETTINGS`). TrackingError naming the URI and `what` when the last try fails."""
+    attempts = LOCAL_STORE_ATTEMPTS if _local_store_path(uri) is not None else 1
+    for attempt in range(attempts):
+        try:
+            with _quiet(MLFLOW_SQL_LOGGER):
+                return call(*arguments, **keywords)
+        except Exception as error:  # mlflow, SQLAlchemy and requests raise many types for a store gone
+            if attempt + 1 == attempts:
+                tries = f" (tried {attempts} times)" if attempts > 1 else ""
+                raise TrackingError(f"MLflow tracking store {uri!r} failed while {what}{tries}: "
+                                    f"{_first_line(error)}") from None
+            time.sleep(LOCAL_STORE_BACKOFF_S * 2 ** attempt)
+    raise AssertionError("unreachable")
 
 
 def tracking_uri(default: str) -> str:
@@ -130,29 +183,42 @@ def check_tracking_store(uri: str, experiment: str, stage: str) -> None:
     """Fail fast, naming the URI, if the store cannot be reached or written, or if it would put
     the runs' artifacts outside a local store's folder; then close the runs of `stage` that
     killed processes on this host left RUNNING."""
-    os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
-    os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "10")
     import mlflow
 
     folder = _store_folder(uri)
     try:
-        with _first_use_lock(folder):
-            client = mlflow.MlflowClient(tracking_uri=uri)
-            found = client.get_experiment_by_name(experiment)
-            if found is None:
-                experiment_id = _create_experiment(client, experiment, folder, uri)
-            else:
-                experiment_id = found.experiment_id
-                if folder is not None:
-                    _check_artifacts_in_store_folder(uri, folder, experiment, found.artifact_location)
-                if _needs_kind(found.tags.get(EXPERIMENT_KIND_TAG)):
-                    client.set_experiment_tag(experiment_id, EXPERIMENT_KIND_TAG, MODEL_TRAINING)
-        _close_killed_runs(client, experiment_id, stage)
+        with _http_settings(CHECK_HTTP_SETTINGS):
+            with _first_use_lock(folder):
+                client = mlflow.MlflowClient(tracking_uri=uri)
+                found = client.get_experiment_by_name(experiment)
+                if found is None:
+                    experiment_id = _create_experiment(client, experiment, folder, uri)
+                else:
+                    experiment_id = found.experiment_id
+                    if folder is not None:
+                        _check_artifacts_in_store_folder(uri, folder, experiment, found.artifact_location)
+                    if _needs_kind(found.tags.get(EXPERIMENT_KIND_TAG)):
+                        client.set_experiment_tag(experiment_id, EXPERIMENT_KIND_TAG, MODEL_TRAINING)
+            _close_killed_runs(client, experiment_id, stage)
     except TrackingError:
         raise
     except Exception as error:  # mlflow raises many types for an unreachable or broken store
-        raise TrackingError(f"MLflow tracking store {uri!r} cannot be used: {type(error).__name__}: "
-                            f"{str(error).splitlines()[0] if str(error) else ''}") from None
+        raise TrackingError(f"MLflow tracking store {uri!r} cannot be used: {_first_line(error)}") from None
+    for name, value in RUN_HTTP_SETTINGS.items():
+        os.environ.setdefault(name, value)
+
+
+@contextmanager
+def _http_settings(settings: dict[str, str]) -> Iterator[None]:
+    """MLflow's HTTP settings `settings` for the block, where the environment does not set them (MLflow reads
+    them at every request), then as they were: the check fails fast, the run's writes are retried."""
+    unset = [name for name in settings if name not in os.environ]
+    os.environ.update({name: settings[name] for name in unset})
+    try:
+        yield
+    finally:
+        for name in unset:
+            os.environ.pop(name, None)
 
 
 @contextmanager
@@ -223,35 +289,48 @@ def run_tags(stage: str) -> dict[str, str]:
     return {"stage": stage, "git_commit": git_commit(), "host": socket.gethostname(), "pid": str(os.getpid())}
 
 
-def lightning_logger(params: Params, stage: str, command: str, data: Path) -> MLFlowLogger:
+def lightning_logger(params: Params, stage: str, command: str, data: Path) -> TrainingLogger:
     """Lightning's MLflow logger for the one run of a training stage that trains with `filter_training`
     (`train_kalman_net`, `train_lstm_update`), the store checked first (`check_tracking_store`): its
     tags, the hash of its input `data` and the command that made it."""
-    from lightning.pytorch.loggers import MLFlowLogger
+    from pipeline.tracking_logger import TrainingLogger
 
     uri = tracking_uri(params.training.tracking_uri)
     check_tracking_store(uri, params.training.experiment, stage)
-    return MLFlowLogger(experiment_name=params.training.experiment, run_name=stage, tracking_uri=uri,
-                        tags={**run_tags(stage), **session_tags(params), "input_data_sha256": data_hash(data),
-                              "mlflow.source.name": f"python -m pipeline {command}"})
+    logger = TrainingLogger(uri, experiment_name=params.training.experiment, run_name=stage,
+                            tags={**run_tags(stage), **session_tags(params), "input_data_sha256": data_hash(data),
+                                  "mlflow.source.name": f"python -m pipeline {command}"})
+    write_to_store(uri, "starting the run", lambda: logger.run_id)
+    return logger
 
 
 @contextmanager
 def filter_training_run(params: Params, stage: str, command: str, data: Path, section: str, values: object,
-                        describe: str) -> Iterator[MLFlowLogger]:
+                        describe: str) -> Iterator[TrainingLogger]:
     """The one MLflow run of a stage that trains with `filter_training` (`train_kalman_net`,
     `train_lstm_update`): `lightning_logger`'s run, logged (`describe`, with the run's id and store)
     and given the params of `section` (a params dataclass `values`, each key as `<section>.<key>`);
-    yields the logger. Ended as FAILED if the body raises (even KeyboardInterrupt), else as success."""
+    yields the logger. Ended as FAILED if the body raises (even KeyboardInterrupt), else as success;
+    TrackingError after the body when a write to the store failed (`TrainingLogger`)."""
     logger = lightning_logger(params, stage, command, data)
     log.info("%s: %s, MLflow run %s in %s", stage, describe, logger.run_id, tracking_uri(params.training.tracking_uri))
-    try:
+    with ended_run(logger, "the stage's outputs"):
         logger.log_hyperparams({f"{section}.{key}": value for key, value in asdict(values).items()})
         yield logger
+
+
+@contextmanager
+def ended_run(logger: TrainingLogger, written: str) -> Iterator[None]:
+    """The block's run ended FAILED if the block raises (even KeyboardInterrupt; a store that fails then is
+    warned about, the block's error goes on), else FINISHED, and then TrackingError if any write to the store
+    failed (`TrainingLogger.raise_if_failed`, `written` naming the outputs the block wrote)."""
+    try:
+        yield
     except BaseException:
-        logger.experiment.set_terminated(logger.run_id, "FAILED")
+        logger.finalize("failed")
         raise
     logger.finalize("success")
+    logger.raise_if_failed(written)
 
 
 def dvc_experiment() -> str | None:
@@ -282,15 +361,44 @@ def stage_run(uri: str, params: Params, stage: str, command: str,
     """The stage's MLflow run, open for as long as the block: opened before the stage's work, so
     its duration in the UI is the work's, and ended FAILED if the block raises (Ctrl-C too).
 
-    Call `check_tracking_store` first, before any work, so a bad store stops the stage at once."""
+    Call `check_tracking_store` first, before any work, so a bad store stops the stage at once. Opening
+    and ending the run are retried (`write_to_store`); a store that fails while the run ends FAILED is
+    warned about, and the block's error goes on."""
     import mlflow
 
     mlflow.set_tracking_uri(uri)
-    mlflow.set_experiment(params.training.experiment)
     every_tag = {**run_tags(stage), **session_tags(params), "mlflow.source.name": f"python -m pipeline {command}",
                  **(tags or {})}
-    with mlflow.start_run(run_name=stage, tags=every_tag) as run:
+    run = write_to_store(uri, "starting the run", _start_run, params.training.experiment, stage, every_tag)
+    try:
         yield run
+    except BaseException:
+        try:
+            _end_run(uri, run.info.run_id, "FAILED")
+        except TrackingError as error:
+            log.warning("%s", error)
+        raise
+    _end_run(uri, run.info.run_id, "FINISHED")
+
+
+def _start_run(experiment: str, stage: str, tags: dict[str, str]) -> ActiveRun:
+    import mlflow
+
+    mlflow.set_experiment(experiment)
+    return mlflow.start_run(run_name=stage, tags=tags)
+
+
+def _end_run(uri: str, run_id: str, status: str) -> None:
+    """End the active run; MLflow takes it off its stack of active runs before it writes the status, so
+    a failed write is retried with the client."""
+    import mlflow
+
+    try:
+        with _quiet(MLFLOW_SQL_LOGGER):
+            mlflow.end_run(status)
+    except Exception:  # the store's: retried below
+        write_to_store(uri, f"ending run {run_id} ({status})", mlflow.MlflowClient(uri).set_terminated, run_id,
+                       status)
 
 
 def _close_killed_runs(client: MlflowClient, experiment_id: str, stage: str) -> None:

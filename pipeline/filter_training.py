@@ -31,7 +31,7 @@ from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from pipeline import io, training  # noqa: F401  (training: Lightning's logging set up as for the other networks)
+from pipeline import io, training  # training: Lightning's logging set up as for the other networks
 from pipeline import tuning
 from pipeline.params import Radar
 from pipeline.torch_filters import SequenceBatch
@@ -118,8 +118,12 @@ class FilterDescent(L.LightningModule):
         self._scored += scored
         return loss
 
+    def epoch_train_loss(self) -> float:
+        """The epoch's mean position error so far (m)."""
+        return self._error_sum / max(self._scored, 1)
+
     def on_train_epoch_end(self) -> None:
-        loss = self._error_sum / max(self._scored, 1)
+        loss = self.epoch_train_loss()
         self.epoch_losses.append(loss)
         self.log(f"{self.label}.train_loss", loss)
         log.info("%s: epoch %d/%d, mean position error %.2f m, %.0f s", self.label,
@@ -134,10 +138,12 @@ class FilterDescent(L.LightningModule):
 def descend(model: nn.Module, label: str, material: SequenceBatch, config: DescentConfig,
             logger: L.pytorch.loggers.Logger | bool = False) -> tuple[list[float], float]:
     """Train `model` in place (Lightning's Trainer, CPU: the recursion is a loop of small operations);
-    its per-epoch mean position errors (m) and the seconds it took. Deterministic for a seed."""
+    its per-epoch mean position errors (m) and the seconds it took. Deterministic for a seed.
+    TrainingDiverged naming `label` when the loss or a weight goes non-finite (`training.FiniteTraining`)."""
     L.seed_everything(config.seed, workers=True, verbose=False)
     module = FilterDescent(model, label, config)
     trainer = L.Trainer(max_epochs=config.epochs, accelerator="cpu", devices=1, logger=logger,
+                        callbacks=[training.FiniteTraining(label, config.learning_rate, every_batch=True)],
                         deterministic=config.deterministic, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
     began = time.perf_counter()

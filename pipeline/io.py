@@ -39,6 +39,11 @@ class InputError(ValueError):
     """An input file is missing or malformed; the message names the file and the column."""
 
 
+class TrainingDiverged(RuntimeError):
+    """A network's training went non-finite (NaN or infinite loss or weights) and was stopped; the message names
+    the network, the epoch and what went non-finite. Nothing of the training was written (`training.FiniteTraining`)."""
+
+
 def _same_file(first: Path, second: Path) -> bool:
     """Whether two paths name one file: the same resolved path, or (both existing) the same inode,
     so a symbolic or hard link to an input counts as the input."""

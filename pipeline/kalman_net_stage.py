@@ -87,8 +87,8 @@ def run_train_kalman_net(params: Params, simulated_dir: Path, windows_dir: Path,
                             **{f"gradient_{kind}.seconds": v["seconds"] for kind, v in report["gradient"].items()},
                             **{f"gradient_{kind}.r_scale": v["r_scale"] for kind, v in report["gradient"].items()}})
         for artifact in ("kalman_net.pt", "kalman_gradient.json"):
-            logger.experiment.log_artifact(logger.run_id, str(models_dir / artifact))
-        logger.experiment.log_artifact(logger.run_id, str(reports_dir / "kalman_net.json"))
+            logger.log_artifact(models_dir / artifact)
+        logger.log_artifact(reports_dir / "kalman_net.json")
     log.info("train_kalman_net: network %.1f m after %d epochs (%.0f s); %s", report["kalman_net"]["epoch_losses_m"][-1],
              k.epochs, report["kalman_net"]["seconds"],
              ", ".join(f"gradient {kind} {v['epoch_losses_m'][-1]:.1f} m" for kind, v in report["gradient"].items()))

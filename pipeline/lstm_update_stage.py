@@ -93,8 +93,8 @@ def run_train_lstm_update(params: Params, simulated_dir: Path, windows_dir: Path
         logger.log_metrics({"lstm_update.seconds": seconds,
                             **{f"lstm_update.holdout_{key}": value for key, value in ours.items()
                                if isinstance(value, float)}})
-        logger.experiment.log_artifact(logger.run_id, str(models_dir / "lstm_update.pt"))
-        logger.experiment.log_artifact(logger.run_id, str(reports_dir / "lstm_update.json"))
+        logger.log_artifact(models_dir / "lstm_update.pt")
+        logger.log_artifact(reports_dir / "lstm_update.json")
     log.info("train_lstm_update: %.1f m on training after %d epochs (%.0f s); hold-out %s", losses[-1], u.epochs,
              seconds, ", ".join(f"{name} {v['mean_error_m']:.1f} m (turns {v['turn_mean_error_m']:.1f} m, ANEES "
                                 f"{v['anees']:.2f})" for name, v in holdout_scores["filters"].items()))

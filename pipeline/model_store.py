@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any, Callable
 
 import torch
@@ -33,6 +34,28 @@ class LoadedModel:
     @torch.no_grad()
     def predict(self, scaled_windows: torch.Tensor) -> torch.Tensor:
         return self.network(scaled_windows)
+
+
+def first_non_finite(tensors: Mapping[str, Any]) -> str | None:
+    """The name of the first floating-point tensor of `tensors` (a state dict) holding a NaN or an infinity,
+    None when every one is finite (other values are skipped). One check over all of them, then the search."""
+    floating = {name: value for name, value in tensors.items()
+                if isinstance(value, torch.Tensor) and value.is_floating_point()}
+    if not floating or bool(torch.stack([torch.isfinite(value).all() for value in floating.values()]).all()):
+        return None
+    return next(name for name, value in floating.items() if not bool(torch.isfinite(value).all()))
+
+
+def _finite_weights(path: Path, state_dict: Mapping[str, Any], stage: str) -> None:
+    """InputError naming the file and the tensor when a saved network's weights are not all finite: a training
+    that diverged (before its stage refused to save one), or a damaged file; the network would give NaN."""
+    tensor = first_non_finite(state_dict)
+    if tensor is not None:
+        values = state_dict[tensor]
+        bad = int((~torch.isfinite(values)).sum())
+        raise io.InputError(f"{path}: weight tensor '{tensor}' has {bad} non-finite values (NaN or infinite) of "
+                            f"{values.numel()}: its training diverged; train it again (`dvc repro {stage}`, "
+                            "with a lower learning rate)")
 
 
 def write_bundle(bundle: dict[str, Any], path: str | Path) -> None:
@@ -67,7 +90,8 @@ def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module],
 
     InputError naming the file and the `dvc repro` stage that makes it when the file is missing or unreadable,
     or its config or weights do not fit `build`'s network (another network's file, or one saved by another
-    version of the code): torch and the configs raise TypeError, ValueError, KeyError or RuntimeError."""
+    version of the code): torch and the configs raise TypeError, ValueError, KeyError or RuntimeError; and
+    naming the tensor when a weight is not finite."""
     path = Path(path)
     bundle = read_bundle(path)
     if not isinstance(bundle.get("config"), dict) or "state_dict" not in bundle:
@@ -80,6 +104,7 @@ def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module],
         raise io.InputError(f"{path}: its config or weights do not fit the network `dvc repro {stage}` makes "
                             f"(another network's file, or an older one?): {type(error).__name__}: "
                             f"{str(error).splitlines()[0] if str(error) else ''}") from None
+    _finite_weights(path, bundle["state_dict"], stage)
     return network.eval()
 
 
@@ -96,7 +121,8 @@ def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scal
 
 
 def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:
-    """Load a bundle written by `save_model`; errors name the file and what is wrong."""
+    """Load a bundle written by `save_model`; InputError naming the file and what is wrong: missing or
+    unreadable, another kind, weights that do not fit the architecture or are not all finite."""
     path = Path(path)
     bundle = read_bundle(path)
     if bundle.get("format_version") != FORMAT_VERSION:
@@ -110,5 +136,6 @@ def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedMode
     except RuntimeError as error:
         raise io.InputError(f"{path}: weights do not fit the {config.kind} architecture recorded in the file "
                             f"({str(error).splitlines()[0]})") from None
+    _finite_weights(path, bundle["state_dict"], f"train_{config.kind}")
     network.eval()
     return LoadedModel(network, config, WindowScaler.from_dict(bundle["scaler"]), dict(bundle["extras"]))

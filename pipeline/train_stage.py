@@ -131,8 +131,11 @@ def _flat_params(kind: str, params: Params) -> dict:
 
 def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
     """Stage `train_<kind>`: train one network, evaluate it on the hold-out, log one MLflow run
-    with the training windows as its input and the network as a logged, registered model."""
-    from lightning.pytorch.loggers import MLFlowLogger
+    with the training windows as its input and the network as a logged, registered model.
+
+    TrainingDiverged (nothing written, the run FAILED, nothing registered) when a loss goes non-finite;
+    TrackingError, after the model and reports are written, when the store failed during the run."""
+    from pipeline.tracking_logger import TrainingLogger
 
     material = windows_dir / f"{kind}.parquet"
     inputs, targets = training_pairs(kind, material, params)
@@ -148,10 +151,11 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
                                        {"input_data_sha256": experiment_tracking.data_hash(material)}) as run:
         # Lightning logs the losses into the stage's run; at the end of fit it marks the run
         # FINISHED, and the stage's run ends it again (FAILED if anything after fit fails).
-        logger = MLFlowLogger(experiment_name=experiment, tracking_uri=uri, run_id=run.info.run_id)
+        logger = TrainingLogger(uri, experiment_name=experiment, run_id=run.info.run_id)
         log.info("train %s: %d windows, MLflow run %s in %s", kind, len(inputs), run.info.run_id, uri)
         logger.log_hyperparams(_flat_params(kind, params))
-        mlflow_models.log_training_windows(kind, material, inputs, targets)
+        logger.write("logging the training windows", mlflow_models.log_training_windows, kind, material, inputs,
+                     targets)
         module, history = train(config, inputs, targets, training_config(kind, params), logger)
         model = LoadedModel(module.network, config, scaler)
         metrics, extras = _holdout_metrics(kind, model, params, windows_dir)
@@ -172,9 +176,10 @@ def run_train(params: Params, kind: str, windows_dir: Path, models_dir: Path, re
         io.write_json(metrics, reports_dir / "models" / f"{kind}.json")
         logger.log_metrics({key: float(value) for key, value in metrics.items()})
         for artifact in (model_path, reports_dir / f"loss_{kind}.png", reports_dir / "models" / f"{kind}.json"):
-            logger.experiment.log_artifact(run.info.run_id, str(artifact))
-        mlflow_models.log_network(kind, module.network, inputs, experiment, model_path,
-                                  run.data.tags[experiment_tracking.SESSION_TAG])
+            logger.log_artifact(artifact)
+        logger.write("registering the network", mlflow_models.log_network, kind, module.network, inputs, experiment,
+                     model_path, run.data.tags[experiment_tracking.SESSION_TAG])
+        logger.raise_if_failed(f"{model_path} and the reports")
     log.info("train %s: %s", kind, ", ".join(f"{k} {v:.4g}" for k, v in metrics.items()))
 
 

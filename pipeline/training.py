@@ -10,6 +10,7 @@ so the same stage runs on a GPU or several.
 from __future__ import annotations
 
 import logging
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -20,6 +21,8 @@ import torch
 from torch import nn
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
+from pipeline.io import TrainingDiverged
+from pipeline.model_store import first_non_finite
 from pipeline.networks import NetworkConfig, build_network
 
 log = logging.getLogger("pipeline")
@@ -215,12 +218,65 @@ class BestValidation(L.Callback):
             module.load_state_dict(self._best_state)
 
 
+class FiniteTraining(L.Callback):
+    """Stops a training, raising TrainingDiverged, as soon as its loss or its weights are not finite.
+
+    One NaN or infinite loss (too high a learning rate, an overflow) makes every later Adam step NaN:
+    the weights stay NaN for good, and the run would end as usual with a model of NaN weights written
+    and registered. Lightning's EarlyStopping(check_finite=True) only stops, keeping those weights,
+    and its `detect_anomaly` traces every backward pass. Checked, for the network `network` trained at
+    `learning_rate` (named in the message):
+    - the module's `epoch_train_loss()` (the epoch's mean so far) after every batch when `every_batch`
+      (the filter and association modules, which read their loss on the CPU at every step anyway),
+      else after each validation and at each epoch's end (one read per epoch: no sync per step);
+    - the validation loss `val_loss` after each validation;
+    - every floating-point tensor of the module's state at each epoch's end (the Adam step after the
+      last loss of an epoch may overflow).
+    The exception goes through Lightning's interrupt handling (its loggers finalized "failed") to the
+    stage, which writes nothing, ends its MLflow run FAILED and registers nothing; the command exits 2."""
+
+    def __init__(self, network: str, learning_rate: float, every_batch: bool = False) -> None:
+        self.network, self.learning_rate, self.every_batch = network, learning_rate, every_batch
+
+    def _stop(self, trainer: L.Trainer, what: str, batch: int | None = None) -> None:
+        where = f"epoch {trainer.current_epoch + 1} of {trainer.max_epochs}"
+        if batch is not None:
+            where += f", batch {batch + 1}"
+        raise TrainingDiverged(f"training of {self.network} stopped: {what} at {where} (learning rate "
+                               f"{self.learning_rate:g}); no model written (a lower learning rate may help)")
+
+    def _check_train_loss(self, trainer: L.Trainer, module: L.LightningModule, batch: int | None = None) -> None:
+        loss = float(module.epoch_train_loss())
+        if not math.isfinite(loss):
+            self._stop(trainer, f"the training loss became {loss}", batch)
+
+    def on_train_batch_end(self, trainer: L.Trainer, module: L.LightningModule, outputs: object, batch: object,
+                           batch_index: int) -> None:
+        if self.every_batch:
+            self._check_train_loss(trainer, module, batch_index)
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        if trainer.sanity_checking or "val_loss" not in trainer.callback_metrics:
+            return
+        self._check_train_loss(trainer, module)  # validation follows the epoch's batches: name the first to go
+        loss = float(trainer.callback_metrics["val_loss"])
+        if not math.isfinite(loss):
+            self._stop(trainer, f"the validation loss became {loss}")
+
+    def on_train_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
+        self._check_train_loss(trainer, module)
+        tensor = first_non_finite(module.state_dict())
+        if tensor is not None:
+            self._stop(trainer, f"the weight tensor '{tensor}' became non-finite")
+
+
 def train(config: NetworkConfig, inputs: np.ndarray, targets: np.ndarray, training: TrainingConfig,
           logger: L.pytorch.loggers.Logger | bool = False) -> tuple[NetworkModule, EpochLog]:
     """Train one network from scratch; deterministic for a given seed on the same machine.
 
     Returns the module in eval mode (with the best epoch's weights under early stopping) and
-    the per-epoch losses with the epoch whose weights it kept."""
+    the per-epoch losses with the epoch whose weights it kept. TrainingDiverged when a loss or
+    a weight goes non-finite (`FiniteTraining`)."""
     torch.set_num_threads(training.threads)
     L.seed_everything(training.seed, workers=True, verbose=False)
     data = WindowDataModule(inputs, targets, training.batch_size, training.validation_fraction, training.seed)
@@ -228,7 +284,7 @@ def train(config: NetworkConfig, inputs: np.ndarray, targets: np.ndarray, traini
                            training.lr_decay_patience, training.early_stopping_min_improvement)
     history = EpochLog(config.kind)
     best = BestValidation(training.early_stopping_patience, training.early_stopping_min_improvement)
-    callbacks: list[L.Callback] = [history, best]
+    callbacks: list[L.Callback] = [history, FiniteTraining(f"the {config.kind} network", training.learning_rate), best]
     trainer = L.Trainer(max_epochs=training.epochs, accelerator=training.accelerator, devices=training.devices,
                         strategy=training.strategy, logger=logger, callbacks=callbacks, deterministic=training.deterministic,
                         enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import association_net
+from pipeline import association_net, io
 from pipeline.association_net import AssociationNet, AssociationNetConfig, TrainConfig, decide
 from pipeline.association_report import inputs_of
 from pipeline.association_scenes import make_scene
@@ -57,6 +57,16 @@ def test_saved_network_decides_the_same(trained, tmp_path):
     inputs = inputs_of(make_scene(SETTING, 12, 0), CONFIG)
     np.testing.assert_array_equal(association_net.probabilities(loaded, inputs),
                                   association_net.probabilities(trained, inputs))
+
+
+def test_a_loss_that_goes_nan_stops_the_training(one_torch_thread):
+    """Learning rate 1e30: the cross-entropy is NaN after the first step; stopped at the second batch."""
+    torch.manual_seed(0)
+    model = AssociationNet(CONFIG)
+    scenes = [inputs_of(make_scene(SETTING, 11, k), CONFIG) for k in range(8)]
+    with pytest.raises(io.TrainingDiverged, match="training of the association network stopped: the training loss "
+                                                  "became nan at epoch 1 of 2, batch 2"):
+        association_net.train(model, lambda epoch: scenes, TrainConfig(2, 8, 4, 1e30, 0, True))
 
 
 def test_neighbourhoods_hold_the_track_first_and_at_most_size_tracks():

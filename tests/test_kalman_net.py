@@ -12,7 +12,7 @@ import pyarrow as pa
 import pytest
 import torch
 
-from pipeline import batch_filters, kalman_net, kalman_net_stage
+from pipeline import batch_filters, io, kalman_net, kalman_net_stage
 from pipeline.classical_filters import FilterSettings
 from pipeline.filter_training import DescentConfig, descend
 from pipeline.gradient_tuning import TunedFilter
@@ -142,6 +142,27 @@ def test_gradient_tuned_r_scale_converges_near_the_true_noise_ratio():
                                                                     truncation_steps=10, seed=0, deterministic=True))
     assert losses[-1] < losses[0]
     assert 4.0 / 1.3 < model.to_dict()["r_scale"] < 4.0 * 1.3
+
+
+def test_a_gradient_tuned_filter_whose_loss_goes_nan_stops_its_training():
+    """Learning rate 1e30 on the stage's training loop: the filter's logarithms overflow at the first
+    step and the loss of the next batch is NaN; the training stops there, naming the filter."""
+    material, q = synthetic_cv_flights(64, 20, 2.0, seed=0)
+    model = TunedFilter(FilterSpec("cv", (q,), 150.0 * np.sqrt(3), 0.0))
+    with pytest.raises(io.TrainingDiverged, match=r"training of gradient_cv stopped: the training loss became nan "
+                                                   r"at epoch 1 of 3, batch 2"):
+        descend(model, "gradient_cv", material, DescentConfig(epochs=3, batch_segments=16, learning_rate=1e30,
+                                                              truncation_steps=10, seed=0, deterministic=True))
+
+
+def test_a_saved_network_with_a_nan_weight_is_refused(tmp_path):
+    """`kalman_net.load` (the shared `model_store.load_network`) names the file and the tensor."""
+    model = KalmanNet(config("singer", "mlp"))
+    with torch.no_grad():
+        model.network.head.weight[0, 0] = float("nan")
+    kalman_net.save(model, tmp_path / "kalman_net.pt")
+    with pytest.raises(io.InputError, match="kalman_net.pt: weight tensor 'network.head.weight' has 1 non-finite"):
+        kalman_net.load(tmp_path / "kalman_net.pt")
 
 
 def test_saved_model_loads_and_gives_per_step_scales(tmp_path, radar):

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import cli, io, model_eval, train_stage
+from pipeline import cli, io, model_eval, train_stage, training
 from pipeline.experiment_tracking import SESSION_TAG, data_hash
 from pipeline.mlflow_models import DATASET_DIGEST_CHARS, FILE_DIGEST_TAG, registered_name, versions_used
 from pipeline.model_store import load_model, save_model
@@ -118,6 +118,32 @@ def test_a_few_epochs_lower_the_training_loss():
     assert not module.training  # handed back ready for inference
 
 
+def test_a_training_loss_that_goes_nan_stops_the_training_naming_the_network_and_the_epoch():
+    """Learning rate 1e30: Adam's first steps overflow the weights and the loss is NaN in epoch 1; the
+    training stops there with TrainingDiverged instead of running its 5 epochs on NaN weights."""
+    inputs, targets = smooth_windows(CONFIGS["filter"], 100)
+    with pytest.raises(io.TrainingDiverged, match=r"training of the filter network stopped: the training loss "
+                                                   r"became nan at epoch 1 of 5 \(learning rate 1e\+30\)"):
+        train(CONFIGS["filter"], inputs, targets, dataclasses.replace(FEW_EPOCHS, learning_rate=1e30))
+
+
+class InfiniteValidationTargets(WindowDataModule):
+    """The windows of `WindowDataModule`, the validation windows' targets made infinite."""
+
+    def __init__(self, *arguments, **keywords) -> None:
+        super().__init__(*arguments, **keywords)
+        self.validation_set.targets[:] = float("inf")
+
+
+def test_a_validation_loss_that_is_not_finite_stops_the_training(monkeypatch):
+    """A finite training loss but an infinite validation loss (infinite validation targets): stopped
+    after the first validation, the validation loss named."""
+    monkeypatch.setattr(training, "WindowDataModule", InfiniteValidationTargets)
+    inputs, targets = smooth_windows(CONFIGS["filter"], 100)
+    with pytest.raises(io.TrainingDiverged, match="the validation loss became inf at epoch 1 of 5"):
+        train(CONFIGS["filter"], inputs, targets, FEW_EPOCHS)
+
+
 def test_early_stopping_ends_training_when_validation_loss_stops_improving():
     """With patience 1 and a frozen network (learning rate 0), training stops after the second epoch."""
     inputs, targets = smooth_windows(CONFIGS["filter"], 100)
@@ -205,6 +231,18 @@ def test_weights_that_do_not_fit_the_recorded_architecture_are_refused(tmp_path)
     torch.save(bundle, path)
     with pytest.raises(io.InputError, match=f"{path}: weights do not fit the filter architecture"):
         load_model(path)
+
+
+def test_a_bundle_with_a_non_finite_weight_is_refused_naming_the_file_and_the_tensor(tmp_path):
+    """One NaN in a saved predictor's output weights (a training that diverged): load_model refuses the
+    file, naming it and the tensor, rather than hand the tracker a network that predicts NaN."""
+    network = build_network(CONFIGS["predictor"])
+    with torch.no_grad():
+        network.head.weight[0, 0] = float("nan")
+    path = tmp_path / "predictor.pt"
+    save_model(path, network, CONFIGS["predictor"], SCALER)
+    with pytest.raises(io.InputError, match=f"{path}: weight tensor 'head.weight' has 1 non-finite values"):
+        load_model(path, expected_kind="predictor")
 
 
 @pytest.mark.parametrize("content, message", [
@@ -561,3 +599,50 @@ def test_a_stage_that_fails_after_its_run_opened_ends_the_run_failed(chain, tmp_
     [run] = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
     assert run.info.run_name == "train_predictor" and run.info.status == "FAILED"
     assert not (tmp_path / "models").exists()
+
+
+def test_a_training_that_goes_nan_exits_2_writes_nothing_and_registers_nothing(chain, tmp_path, caplog,
+                                                                                local_store, monkeypatch):
+    """The predictor at learning rate 1e30 (its loss NaN in epoch 1): exit 2 naming the network, the epoch
+    and the loss; the model file already there is kept as it was, no report is written, the MLflow run
+    ends FAILED and no model version is registered."""
+    tree = tiny_params_tree()
+    tree["windows"]["holdout_fraction"] = HOLDOUT_FRACTION
+    tree["training"]["predictor"].update(epochs=CLI_EPOCHS, learning_rate=1e30)
+    earlier = tmp_path / "models" / "predictor.pt"
+    earlier.parent.mkdir()
+    earlier.write_bytes(b"the model of an earlier training")
+    monkeypatch.chdir(tmp_path)
+    code, log = train_command(caplog, write_params(tree, tmp_path / "params.yaml"), "predictor", chain / "windows",
+                              tmp_path)
+    assert code == 2
+    assert "training of the predictor network stopped: the training loss became nan at epoch 1 of 2" in log
+    assert earlier.read_bytes() == b"the model of an earlier training"
+    assert list((tmp_path / "models").iterdir()) == [earlier] and not (tmp_path / "reports").exists()
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{local_store}")
+    [run] = client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
+    assert run.info.run_name == "train_predictor" and run.info.status == "FAILED"
+    assert client.search_model_versions(f"name = '{registered_name(EXPERIMENT, 'predictor')}'") == []
+
+
+def test_a_store_removed_during_training_costs_no_model_and_ends_in_a_named_error(chain, tmp_path, caplog,
+                                                                                   local_store, monkeypatch):
+    """The SQLite store deleted once the run is open (its writes then fail): each write is retried, the
+    training goes on and writes its model and reports, and the command exits 2 naming the store, without
+    a traceback."""
+    real_train = train_stage.train
+
+    def remove_the_store_then_train(*arguments, **keywords):
+        local_store.unlink()
+        return real_train(*arguments, **keywords)
+
+    monkeypatch.setattr(train_stage, "train", remove_the_store_then_train)
+    monkeypatch.setattr("pipeline.experiment_tracking.LOCAL_STORE_BACKOFF_S", 0.01)
+    monkeypatch.chdir(tmp_path)
+    code, log = train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)
+    assert code == 2
+    assert f"MLflow tracking store 'sqlite:///{local_store}' failed while logging" in log
+    assert f"{tmp_path / 'models' / 'predictor.pt'} and the reports written" in log
+    assert load_model(tmp_path / "models" / "predictor.pt", expected_kind="predictor")
+    assert (tmp_path / "reports" / "models" / "predictor.json").is_file()
+    assert "Traceback" not in log
