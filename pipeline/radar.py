@@ -110,7 +110,8 @@ def mean_rcs(velocity_ecef: np.ndarray, line_of_sight_ecef: np.ndarray, kind: Ai
 def mean_snr(range_m: np.ndarray, rcs_m2: np.ndarray, radar: Radar) -> np.ndarray:
     """Radar equation relative to the reference target: linear mean SNR."""
     ratio = radar.reference_range_m / np.asarray(range_m)
-    return sm.power(10.0, radar.reference_snr_db / 10.0) * (rcs_m2 / radar.reference_rcs_m2) * ((ratio * ratio) * (ratio * ratio))
+    reference = sm.power(10.0, radar.reference_snr_db / 10.0)
+    return reference * (rcs_m2 / radar.reference_rcs_m2) * ((ratio * ratio) * (ratio * ratio))
 
 
 def detection_probability(snr: np.ndarray, radar: Radar) -> np.ndarray:

@@ -368,7 +368,8 @@ def _with_altitude(horizontal: Callable[[np.ndarray], np.ndarray], altitude: Cal
 
 def climb_speed_max_mps(kind: Aircraft) -> float:
     """Fastest horizontal speed of a climb_dive route: in its steepest climb it flies at top speed."""
-    return float(np.sqrt(kind.speed_max_mps * kind.speed_max_mps - kind.max_vertical_rate_mps * kind.max_vertical_rate_mps))
+    top, vertical = kind.speed_max_mps, kind.max_vertical_rate_mps
+    return float(np.sqrt(top * top - vertical * vertical))
 
 
 def plan_climb_dive(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, box: CoverageBox,
