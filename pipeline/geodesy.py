@@ -192,7 +192,7 @@ def ecef_to_geodetic(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     cos_beta = np.where(pole, 0.0, cos_beta)
     height = sm.hypot(z - b * sin_beta, horizontal - a * cos_beta)  # eq. 7
     inside = x * x / (a * a) + y * y / (a * a) + z * z / (b * b) < 1.0
-    return np.degrees(lat), np.degrees(sm.atan2(y, x)), np.where(inside, -height, height)
+    return np.degrees(lat), np.degrees(sm.atan2(y, x)), np.where(inside, -height, height)[()]
 
 
 def _aer(ecef: np.ndarray, radar: Radar) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
