@@ -4,6 +4,10 @@ A CAT048 plot carries slant range in 1/256 NM (I048/040), azimuth in 360/2^16 de
 (I048/040), Mode C altitude in 1/4 flight level (I048/090) and time of day in 1/128 s
 since midnight UTC (I048/140). Simulated plots are quantised to exactly these steps so
 that what the tracker sees is what a real radar would send.
+
+Only division, rounding to nearest even, multiplication and floor are used: IEEE 754 rounds each
+correctly, so the quantised values are the same on every processor (issue 27; the elementary
+functions upstream are `pipeline.strict_math`'s for the same reason).
 """
 
 from __future__ import annotations

@@ -13,6 +13,10 @@
   radar horizon are not detected.
 - Measurements: slant range, azimuth from north and altitude with Gaussian errors, then
   quantised to ASTERIX CAT048 resolutions.
+
+Logarithms and powers (the SNR, Pd, the threshold) come from `pipeline.strict_math` and dot
+products are written out, so that the truth files' bytes do not depend on the processor
+(issue 27): NumPy's `log10` and `**` run processor-specific kernels.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import asterix_units, geodesy
+from pipeline import asterix_units, geodesy, strict_math as sm
 from pipeline.params import Aircraft, Radar
 
 BEAM_CROSSING_ITERATIONS = 8
@@ -70,7 +74,7 @@ def beam_crossings(trajectory: CubicHermiteSpline, radar: Radar) -> tuple[np.nda
     origin, end = knots[0], knots[-1]
     rate = 360.0 / radar.scan_period_s
     phase = float(beam_azimuth_deg(origin, radar))
-    _, azimuth, _ = geodesy.true_measurement(trajectory(knots), radar)
+    azimuth = geodesy.azimuth_deg(trajectory(knots), radar)
     unwrapped = np.degrees(np.unwrap(np.radians(azimuth)))
     lead = phase + (knots - origin) * rate - unwrapped
     turns = np.arange(np.ceil(lead.min() / 360.0), np.floor(lead.max() / 360.0) + 1.0) * 360.0
@@ -78,11 +82,11 @@ def beam_crossings(trajectory: CubicHermiteSpline, radar: Radar) -> tuple[np.nda
 
     def residual_and_slope(elapsed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         t = origin + elapsed
-        _, exact, _ = geodesy.true_measurement(trajectory(np.clip(t, origin, end)), radar)
+        exact = geodesy.azimuth_deg(trajectory(np.clip(t, origin, end)), radar)
         guess = np.interp(elapsed, knots - origin, unwrapped)
         target = guess + np.mod(exact - guess + 180.0, 360.0) - 180.0
-        _, ahead, _ = geodesy.true_measurement(trajectory(np.clip(t + AZIMUTH_RATE_STEP_S, origin, end)), radar)
-        _, behind, _ = geodesy.true_measurement(trajectory(np.clip(t - AZIMUTH_RATE_STEP_S, origin, end)), radar)
+        ahead = geodesy.azimuth_deg(trajectory(np.clip(t + AZIMUTH_RATE_STEP_S, origin, end)), radar)
+        behind = geodesy.azimuth_deg(trajectory(np.clip(t - AZIMUTH_RATE_STEP_S, origin, end)), radar)
         azimuth_rate = (np.mod(ahead - behind + 180.0, 360.0) - 180.0) / (2.0 * AZIMUTH_RATE_STEP_S)
         return phase + elapsed * rate - target - turns, np.maximum(rate - azimuth_rate, 0.05 * rate)
 
@@ -97,28 +101,29 @@ def beam_crossings(trajectory: CubicHermiteSpline, radar: Radar) -> tuple[np.nda
 
 def mean_rcs(velocity_ecef: np.ndarray, line_of_sight_ecef: np.ndarray, kind: Aircraft) -> np.ndarray:
     """Aspect-dependent mean RCS: rcs_front nose- or tail-on, rcs_side broadside."""
-    cos_aspect = np.einsum("ij,ij->i", velocity_ecef, line_of_sight_ecef) / (
-        np.linalg.norm(velocity_ecef, axis=1) * np.linalg.norm(line_of_sight_ecef, axis=1))
+    cos_aspect = np.add.reduce(velocity_ecef * line_of_sight_ecef, axis=1) / (
+        sm.norm(velocity_ecef, axis=1) * sm.norm(line_of_sight_ecef, axis=1))
     sin2 = 1.0 - np.clip(cos_aspect, -1.0, 1.0) ** 2
     return kind.rcs_front_m2 + (kind.rcs_side_m2 - kind.rcs_front_m2) * sin2
 
 
 def mean_snr(range_m: np.ndarray, rcs_m2: np.ndarray, radar: Radar) -> np.ndarray:
     """Radar equation relative to the reference target: linear mean SNR."""
-    return (10.0 ** (radar.reference_snr_db / 10.0) * (rcs_m2 / radar.reference_rcs_m2)
-            * (radar.reference_range_m / np.asarray(range_m)) ** 4)
+    ratio = radar.reference_range_m / np.asarray(range_m)
+    reference = sm.power(10.0, radar.reference_snr_db / 10.0)
+    return reference * (rcs_m2 / radar.reference_rcs_m2) * ((ratio * ratio) * (ratio * ratio))
 
 
 def detection_probability(snr: np.ndarray, radar: Radar) -> np.ndarray:
     """Swerling 1, square-law detector: Pd = Pfa^(1 / (1 + SNR))."""
-    return radar.false_alarm_probability ** (1.0 / (1.0 + np.asarray(snr)))
+    return sm.power(radar.false_alarm_probability, 1.0 / (1.0 + np.asarray(snr)))
 
 
 def detect(rng: np.random.Generator, snr: np.ndarray, radar: Radar) -> np.ndarray:
     """Draw detections: the received power of a Swerling-1 target in noise is exponential with
     mean 1 + SNR (in noise units); it is detected above the threshold -ln(Pfa)."""
     power = (1.0 + np.asarray(snr)) * rng.exponential(1.0, size=np.shape(snr))
-    return power > -np.log(radar.false_alarm_probability)
+    return power > -sm.log(radar.false_alarm_probability)
 
 
 def in_coverage(range_m: np.ndarray, altitude_m: np.ndarray, elevation_deg: np.ndarray, radar: Radar) -> np.ndarray:

@@ -37,6 +37,12 @@ it is exact to well under a millimetre per second rather than a finite differenc
   the steepest climb stays below the top speed. A route ends after its drawn length or when
   it leaves coverage, and is redrawn if shorter than `min_length_m` or if it leaves before
   finishing its first climb or dive.
+
+Sines, cosines and vector lengths come from `pipeline.strict_math`, which gives the same bits on
+every processor, as do the conversions of `geodesy`: with NumPy's and the C library's,
+processor-specific in the last bit, the route files' bytes differ from machine to machine, and
+a last bit can even tip a redraw decision (a leg's duration, a box test) and so a whole route
+(issue 27).
 """
 
 from __future__ import annotations
@@ -48,7 +54,7 @@ import numpy as np
 import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import geodesy, io
+from pipeline import geodesy, io, strict_math as sm
 from pipeline.params import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, Params, RandomTurns, Radar, Routes,
                              Split, SustainedTurns)
 
@@ -110,14 +116,14 @@ def _random_point(rng: np.random.Generator, box: CoverageBox, kind: Aircraft) ->
 def _leg_is_flyable(start: np.ndarray, end: np.ndarray, v_start: np.ndarray, v_end: np.ndarray,
                     kind: Aircraft, box: CoverageBox) -> tuple[bool, float]:
     """Hermite leg between two states: within acceleration, speed and box? Returns (ok, duration)."""
-    duration = 2.0 * np.linalg.norm(end - start) / (np.linalg.norm(v_start) + np.linalg.norm(v_end))
+    duration = 2.0 * sm.norm(end - start) / (sm.norm(v_start) + sm.norm(v_end))
     leg = CubicHermiteSpline([0.0, duration], np.stack([start, end]), np.stack([v_start, v_end]))
     # Acceleration of a cubic is linear in time, so its norm peaks at an end of the leg.
     acceleration = leg(np.array([0.0, duration]), 2)
-    if np.linalg.norm(acceleration, axis=1).max() > kind.max_acceleration_mps2:
+    if sm.norm(acceleration, axis=1).max() > kind.max_acceleration_mps2:
         return False, duration
     t = np.linspace(0.0, duration, max(32, int(duration / 2.0)))
-    speed = np.linalg.norm(leg(t, 1), axis=1)
+    speed = sm.norm(leg(t, 1), axis=1)
     if speed.min() < kind.speed_min_mps or speed.max() > kind.speed_max_mps:
         return False, duration
     points = leg(t)
@@ -127,14 +133,14 @@ def _leg_is_flyable(start: np.ndarray, end: np.ndarray, v_start: np.ndarray, v_e
 
 def _next_waypoint(rng: np.random.Generator, previous: np.ndarray, cfg: ConstantJerk, box: CoverageBox,
                    kind: Aircraft) -> np.ndarray:
-    bearing = rng.uniform(0.0, 2.0 * np.pi)
+    sin_bearing, cos_bearing = sm.sin_cos(rng.uniform(0.0, 2.0 * np.pi))
     distance = rng.uniform(cfg.min_leg_m, cfg.max_leg_m)
-    return np.array([previous[0] + distance * np.sin(bearing), previous[1] + distance * np.cos(bearing),
+    return np.array([previous[0] + distance * sin_bearing, previous[1] + distance * cos_bearing,
                      rng.uniform(kind.altitude_min_m, kind.altitude_max_m)])
 
 
 def _velocity_towards(rng: np.random.Generator, start: np.ndarray, target: np.ndarray, kind: Aircraft) -> np.ndarray:
-    direction = (target - start) / np.linalg.norm(target - start)
+    direction = (target - start) / sm.norm(target - start)
     return direction * rng.uniform(kind.speed_min_mps, kind.speed_max_mps)
 
 
@@ -219,10 +225,9 @@ def _turn_displacement(speed: float, heading: np.ndarray, rate: np.ndarray, elap
     turned = rate * elapsed
     straight = np.abs(rate) < 1e-12
     safe_rate = np.where(straight, 1.0, rate)
-    east = np.where(straight, speed * elapsed * np.sin(heading),
-                    speed / safe_rate * (np.cos(heading) - np.cos(heading + turned)))
-    north = np.where(straight, speed * elapsed * np.cos(heading),
-                     speed / safe_rate * (np.sin(heading + turned) - np.sin(heading)))
+    (sin_start, cos_start), (sin_end, cos_end) = sm.sin_cos(heading), sm.sin_cos(heading + turned)
+    east = np.where(straight, speed * elapsed * sin_start, speed / safe_rate * (cos_start - cos_end))
+    north = np.where(straight, speed * elapsed * cos_start, speed / safe_rate * (sin_end - sin_start))
     return east, north
 
 
@@ -363,7 +368,8 @@ def _with_altitude(horizontal: Callable[[np.ndarray], np.ndarray], altitude: Cal
 
 def climb_speed_max_mps(kind: Aircraft) -> float:
     """Fastest horizontal speed of a climb_dive route: in its steepest climb it flies at top speed."""
-    return float(np.sqrt(kind.speed_max_mps ** 2 - kind.max_vertical_rate_mps ** 2))
+    top, vertical = kind.speed_max_mps, kind.max_vertical_rate_mps
+    return float(np.sqrt(top * top - vertical * vertical))
 
 
 def plan_climb_dive(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, box: CoverageBox,
@@ -371,7 +377,8 @@ def plan_climb_dive(rng: np.random.Generator, kind: Aircraft, cfg: ClimbDive, bo
     """Constant horizontal speed through gentle turns, level flight alternating with climbs and dives,
     until the length is flown or coverage is left; see the module docstring."""
     vertical_acceleration = cfg.vertical_acceleration_fraction * kind.max_acceleration_mps2
-    turn_acceleration = np.sqrt(kind.max_acceleration_mps2 ** 2 - vertical_acceleration ** 2)
+    turn_acceleration = np.sqrt(kind.max_acceleration_mps2 * kind.max_acceleration_mps2
+                                - vertical_acceleration * vertical_acceleration)
     for _ in range(cfg.attempts):
         origin = _random_point(rng, box, kind)
         heading = rng.uniform(0.0, 2.0 * np.pi)

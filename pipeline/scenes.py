@@ -34,6 +34,9 @@ The radar is the single-target splits' (`pipeline.simulate`): each aircraft's pl
 Each aircraft gets its own plot at every detection, however close another is: the simulator
 does not merge plots within one resolution cell (hence the formation spacing's lower bound,
 `params.formation_resolution_m`).
+
+Trigonometry and lengths use `pipeline.strict_math`, as `pipeline.routes` does and for its reason:
+the same bits on every processor (issue 27).
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ from typing import Callable
 import numpy as np
 import pyarrow as pa
 
-from pipeline import geodesy, routes, simulate
+from pipeline import geodesy, routes, simulate, strict_math as sm
 from pipeline.params import STRATEGIES, Aircraft, Params, ParamError, Radar
 from pipeline.routes import CoverageBox, PlannedRoute, RouteGenerationError
 
@@ -96,7 +99,7 @@ def check_scenes(params: Params) -> None:
 
 def _unit(heading: float) -> np.ndarray:
     """East and north of a heading (rad from north, clockwise)."""
-    return np.array([np.sin(heading), np.cos(heading)])
+    return np.array(sm.sin_cos(heading))
 
 
 def _straight(east_north: np.ndarray, altitude: float, heading: float, speed: float, duration_s: float
@@ -147,12 +150,13 @@ def plan_formation(rng: np.random.Generator, params: Params) -> list[SceneAircra
         altitude, speed = _altitude_and_speed(rng, kind)
         heading = rng.uniform(0.0, 2.0 * np.pi)
         start = _situation_point(rng, params, altitude) - speed * split * _unit(heading)
-        if np.linalg.norm(start) <= EDGE_MARGIN * coverage_edge_m(altitude, radar):
+        if sm.norm(start) <= EDGE_MARGIN * coverage_edge_m(altitude, radar):
             break
     else:
         raise RouteGenerationError(f"scenes: no {kind.name} formation starting inside coverage in scenes.attempts = "
                                    f"{scenes.attempts} draws; lower scenes.duration_s or scenes.situation_range_m")
-    right = np.array([np.cos(heading), -np.sin(heading)])  # the unit vector to the formation's right
+    sin_heading, cos_heading = sm.sin_cos(heading)
+    right = np.array([cos_heading, -sin_heading])  # the unit vector to the formation's right
     rate = routes.max_turn_rate(kind, speed, kind.max_acceleration_mps2)
     members = []
     for place in np.arange(size) - (size - 1) / 2.0:  # positions across the line, in spacings
@@ -199,7 +203,7 @@ def _clear(candidate: SceneAircraft, placed: list[SceneAircraft], separation_m: 
     """Whether the candidate appears at least `separation_m` (horizontally) from every aircraft flying then."""
     here = candidate.planned.position(np.zeros(1))[0, :2]
     others = [_position_at(other, candidate.start_s) for other in placed]
-    return all(np.linalg.norm(there[:2] - here) >= separation_m for there in others if there is not None)
+    return all(sm.norm(there[:2] - here) >= separation_m for there in others if there is not None)
 
 
 def plan_others(rng: np.random.Generator, params: Params, count: int, placed: list[SceneAircraft]

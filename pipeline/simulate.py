@@ -5,6 +5,9 @@ scenario draws from its own random stream (simulate seed, split seed, route id),
 scenario's plots do not change when other routes are added or removed. The pieces, one
 aircraft's plots (`aircraft_plots`) and the clutter of a time span (`false_plots`), also make
 the multi-target scenes (`pipeline.scenes`).
+
+Every floating-point function here is processor-independent (`pipeline.strict_math`, through
+`geodesy` and `radar`), so the plots and truth have the same bytes on any machine (issue 27).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import geodesy, io, radar as radar_model
+from pipeline import geodesy, io, radar as radar_model, strict_math as sm
 from pipeline.params import Params, Radar, Split
 from pipeline.plot_table import NO_TARGET
 
@@ -121,7 +124,7 @@ def aircraft_plots(params: Params, route: dict[str, np.ndarray], detection_rng: 
         "scan": scan, "time_unix_s": crossing,
         "x_ecef_m": true_ecef[:, 0], "y_ecef_m": true_ecef[:, 1], "z_ecef_m": true_ecef[:, 2],
         "range_m": true_range, "azimuth_deg": true_azimuth, "altitude_m": true_altitude, "in_coverage": covered,
-        "snr_db": 10.0 * np.log10(snr), "detection_probability": np.where(covered, radar_model.detection_probability(
+        "snr_db": 10.0 * sm.log10(snr), "detection_probability": np.where(covered, radar_model.detection_probability(
             snr, radar), 0.0), "detected": detected,
     }
     noisy = [values[detected] for values in radar_model.add_measurement_noise(
