@@ -23,14 +23,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pipeline import association_net
-from pipeline.association_memory import HORIZONTAL, continue_pairs
-from pipeline.association_net import AssociationNet, AssociationNetConfig
-from pipeline.association_scenes import SceneSetting, make_scene
-from pipeline.bias_robust_association import associate_bias_robust
-from pipeline.common_time_states import STATE_SIZE, Snapshot
-from pipeline.track_association import associate_double_threshold, associate_statistical
-from pipeline.track_fusion import fuse_pairs
+from pipeline.association import association_net
+from pipeline.association.association_memory import HORIZONTAL, continue_pairs
+from pipeline.association.association_net import AssociationNet, AssociationNetConfig
+from pipeline.association.association_scenes import SceneSetting, make_scene
+from pipeline.association.bias_robust_association import associate_bias_robust
+from pipeline.association.common_time_states import STATE_SIZE, Snapshot
+from pipeline.association.track_association import associate_double_threshold, associate_statistical
+from pipeline.association.track_fusion import fuse_pairs
 
 GATE = 0.999
 

@@ -1,6 +1,6 @@
 """The cost of the LSTM update's Monte-Carlo dropout (issue 18): plots per second against the copies.
 
-Each track runs as 1 + `mc_samples` copies in one batch (`pipeline.lstm_update`), so the copies
+Each track runs as 1 + `mc_samples` copies in one batch (`pipeline.learning.lstm_update`), so the copies
 are what the covariance costs. For each number of copies the trained estimator (its weights and
 calibration, only `lstm_update.mc_samples` changed) is timed two ways, on one core:
 - tracker: the tracking loop (no metrics, no I/O) over the first test scenarios, every plot
@@ -23,9 +23,10 @@ from pathlib import Path
 
 import torch
 
-from pipeline import filter_holdout, io, materials, model_eval
-from pipeline.evaluation import read_scenarios
-from pipeline.lstm_update import LSTMUpdate
+from pipeline import io
+from pipeline.bench.evaluation import read_scenarios
+from pipeline.learning import filter_holdout, materials, model_eval
+from pipeline.learning.lstm_update import LSTMUpdate
 from pipeline.params import load_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models

@@ -17,7 +17,7 @@ aircraft for each of `--hours`) are written as a Parquet recording first (`--rec
 at a time) and tracked by `python -m pipeline track` whole, as a user would: its wall time and
 peak memory, reading, tracking and writing `compute.chunk_plots` plots at a time. With
 `--out-of-order` they are written with each pair of CHUNK_SCANS-scan parts swapped (files merged
-out of order), so that `track` sorts them first (`pipeline.external_sort`), in a temporary folder
+out of order), so that `track` sorts them first (`pipeline.recordings.external_sort`), in a temporary folder
 beside its output. `--reading` also reads each long recording without tracking it, in a fresh
 process, both as `track` does and whole (`plot_table.read_parquet_recording`, which sorts in
 memory): the reading's own peak memory, which the tracker's would otherwise hide.
@@ -93,25 +93,25 @@ def _spawn(rng: np.random.Generator, count: int, radar) -> dict[str, np.ndarray]
 
 def _measured(times, east, north, altitude, radar, rng):
     """Plots of points on the radar's tangent plane (east, north) at `altitude`, as the pipeline's
-    radar model makes them (`pipeline.radar`): Gaussian range, azimuth and altitude errors, then
+    radar model makes them (`pipeline.simulation.radar`): Gaussian range, azimuth and altitude errors, then
     quantised to ASTERIX CAT048 resolutions (time to 1/128 s) and placed in ECEF; with the
     converted-measurement covariance `track` gives them. Returns times, the measurements
-    (`pipeline.radar.Measurements`) and covariances."""
-    from pipeline import baselines, geodesy
-    from pipeline import radar as radar_model
+    (`pipeline.simulation.radar.Measurements`) and covariances."""
+    from pipeline.geometry import geodesy
+    from pipeline.simulation import radar as radar_model
     lat, lon, alt = geodesy.local_to_geodetic(east, north, altitude, radar)
     slant, azimuth, alt = geodesy.true_measurement(geodesy.geodetic_to_ecef(lat, lon, alt), radar)
     measured = radar_model.measure(times, *radar_model.add_measurement_noise(rng, slant, azimuth, alt, radar), radar,
                                    times)
-    return measured.time_unix_s, measured, baselines.measurement_covariance(measured.ecef, radar)
+    return measured.time_unix_s, measured, geodesy.measurement_covariance(measured.ecef, radar)
 
 
 def dense_parts(radar, aircraft: int, false_plots: float, scans: int, seed: int, detection: float = 1.0):
     """The plots of `scans` antenna scans with `aircraft` aircraft in the air at every moment and
     Poisson(`false_plots`) false plots per scan, each aircraft detected with probability
     `detection` per scan, CHUNK_SCANS scans at a time, in time order: per part its times, quantised
-    measurements (`pipeline.radar.Measurements`), covariances and target ids (NO_TARGET: false)."""
-    from pipeline.plot_table import NO_TARGET
+    measurements (`pipeline.simulation.radar.Measurements`), covariances and target ids (NO_TARGET: false)."""
+    from pipeline.recordings.plot_table import NO_TARGET
     rng = np.random.default_rng(seed)
     period = radar.scan_period_s
     first_scan = np.ceil(T0 / period) * period  # the antenna points north at whole multiples of the period
@@ -152,8 +152,8 @@ def dense_parts(radar, aircraft: int, false_plots: float, scans: int, seed: int,
 
 
 def dense_recording(radar, aircraft: int, false_plots: float, scans: int, seed: int, detection: float = 1.0):
-    """The plot table (`pipeline.plot_table.Plots`, time order, truth known) of `dense_parts`."""
-    from pipeline.plot_table import NO_SCENARIO, Plots
+    """The plot table (`pipeline.recordings.plot_table.Plots`, time order, truth known) of `dense_parts`."""
+    from pipeline.recordings.plot_table import NO_SCENARIO, Plots
     parts = list(dense_parts(radar, aircraft, false_plots, scans, seed, detection))
     time_, position, range_m, covariance, target = (
         np.concatenate([part[0] for part in parts]), np.concatenate([part[1].ecef for part in parts]),
@@ -175,7 +175,7 @@ def write_recording(folder: Path, radar, aircraft: int, false_plots: float, scan
     import pyarrow.parquet as pq
 
     from pipeline import io
-    from pipeline.plot_table import PLOT_INPUT_SCHEMA, RADAR_FILE_SCHEMA
+    from pipeline.recordings.plot_table import PLOT_INPUT_SCHEMA, RADAR_FILE_SCHEMA
     folder.mkdir(parents=True, exist_ok=True)
     plots_path, radar_path = folder / "plots.parquet", folder / "radar.parquet"
     count, held = 0, None
@@ -212,8 +212,8 @@ def _untuned_filters(params, folder: Path) -> Path:
     """`folder` with kalman_tuned.json holding the filters at params' start values (what
     `tune_kalman` starts from; tuned values change the cost little)."""
     from pipeline import io
-    from pipeline.classical_filters import KINDS
-    from pipeline.tune_stage import start_settings
+    from pipeline.filters.classical_filters import KINDS
+    from pipeline.stages.tune_stage import start_settings
     io.write_json({"cost": "rmse", "filters": {kind: start_settings(kind, params).to_dict() for kind in KINDS}},
                   folder / "kalman_tuned.json")
     return folder
@@ -311,8 +311,8 @@ def read_child(spec: dict) -> dict:
     plots chunk by chunk without tracking them: the plots and wall seconds."""
     import contextlib
 
-    from pipeline import plot_table, streamed_recording
     from pipeline.params import load_params
+    from pipeline.recordings import plot_table, streamed_recording
     radar = load_params(spec["params"]).radar
     paths = Path(spec["plots"]), Path(spec["radar"])
     start = time.perf_counter()

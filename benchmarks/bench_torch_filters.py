@@ -1,4 +1,4 @@
-"""Speed of the torch Kalman core (`pipeline.torch_filters`) against the NumPy core (`pipeline.batch_filters`).
+"""Speed of the torch Kalman core (`pipeline.filters.torch_filters`) against the NumPy core (`pipeline.filters.batch_filters`).
 
 Each filter runs over B synthetic tracks of T plots (straight flights, a plot about every 6 s with
 the time quantised to 10 ms as a radar's are, 50/50/30 m noise), batched (B = 256) and single
@@ -7,7 +7,7 @@ and the torch forward and backward of a loss on the positions w.r.t. per-step Q 
 training runs it (truncated every --detach steps). Printed per filter and batch size: steps per
 second (columns of the batch, each B tracks) and track-steps per second (B x steps), best of
 --repeat. Singer has no NumPy twin in `filter_sequences` (n/a). Then the network-scaled filter
-(`pipeline.kalman_net`, Singer base, a GRU cell or an MLP of 16 units): forward, and forward and
+(`pipeline.learning.kalman_net`, Singer base, a GRU cell or an MLP of 16 units): forward, and forward and
 backward of the mean position error w.r.t. its weights; against singer's rows, the network's cost.
 
     python benchmarks/bench_torch_filters.py [--steps 200] [--repeat 3] [--threads 1] [--detach 20]
@@ -22,10 +22,10 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from pipeline import batch_filters, torch_filters
-from pipeline.classical_filters import FilterSettings
-from pipeline.kalman_net import CELLS, KalmanNet, KalmanNetConfig
-from pipeline.torch_filters import FilterSpec, Scales, SequenceBatch
+from pipeline.filters import batch_filters, torch_filters
+from pipeline.filters.classical_filters import FilterSettings
+from pipeline.filters.torch_filters import FilterSpec, Scales, SequenceBatch
+from pipeline.learning.kalman_net import CELLS, KalmanNet, KalmanNetConfig
 
 KINDS = ("cv", "ca", "imm", "singer")
 BATCHES = (256, 1)

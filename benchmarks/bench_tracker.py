@@ -16,7 +16,7 @@ import logging
 import time
 from pathlib import Path
 
-from pipeline.evaluation import read_scenarios
+from pipeline.bench.evaluation import read_scenarios
 from pipeline.params import load_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models

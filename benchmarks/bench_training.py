@@ -28,10 +28,10 @@ from pathlib import Path
 
 import torch
 
-from pipeline.networks import build_network
+from pipeline.learning.networks import build_network
+from pipeline.learning.training import train
 from pipeline.params import load_params
-from pipeline.train_stage import network_config, training_config, training_pairs
-from pipeline.training import train
+from pipeline.stages.train_stage import network_config, training_config, training_pairs
 
 
 def per_step(step: callable, steps: int) -> float:

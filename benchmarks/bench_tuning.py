@@ -21,10 +21,12 @@ from pathlib import Path
 
 import yaml
 
-from pipeline import io, simulate, tuning
-from pipeline.classical_filters import KINDS
+from pipeline import io
+from pipeline.filters import tuning
+from pipeline.filters.classical_filters import KINDS
 from pipeline.params import load_params, load_params_tree
-from pipeline.tune_stage import start_settings
+from pipeline.simulation import simulate
+from pipeline.stages.tune_stage import start_settings
 
 
 def evaluation_seconds(params_path: str, repeat: int) -> dict[str, float]:

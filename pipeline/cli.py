@@ -10,102 +10,102 @@ import sys
 from datetime import date
 from pathlib import Path
 
+from pipeline.association.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.filters.tuning import TuningError
 from pipeline.io import InputError, TrainingDiverged
+from pipeline.learning.experiment_tracking import TrackingError
 from pipeline.params import ParamError, load_params
-from pipeline.experiment_tracking import TrackingError
-from pipeline.routes import RouteGenerationError
-from pipeline.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.simulation.routes import RouteGenerationError
 from pipeline.tracker.registry import CLASSICAL, MANAGEMENT, METHODS, TRACKERS, UnknownMethod
-from pipeline.tuning import TuningError
 
 log = logging.getLogger("pipeline")
 
 
 def _routes(args: argparse.Namespace) -> None:
-    from pipeline.stages import run_routes
+    from pipeline.stages.data_stages import run_routes
     run_routes(load_params(args.params), Path(args.out))
 
 
 def _simulate(args: argparse.Namespace) -> None:
-    from pipeline.stages import run_simulate
+    from pipeline.stages.data_stages import run_simulate
     run_simulate(load_params(args.params), Path(args.routes), Path(args.out))
 
 
 def _scenes(args: argparse.Namespace) -> None:
-    from pipeline.stages import run_scenes
+    from pipeline.stages.data_stages import run_scenes
     run_scenes(load_params(args.params), Path(args.out))
 
 
 def _data_report(args: argparse.Namespace) -> None:
-    from pipeline.stages import run_data_report
+    from pipeline.stages.data_stages import run_data_report
     run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
 
 
 def _windows(args: argparse.Namespace) -> None:
-    from pipeline.stages import run_windows
+    from pipeline.stages.data_stages import run_windows
     run_windows(load_params(args.params), Path(args.simulated), Path(args.out), Path(args.reports))
 
 
 def _train(args: argparse.Namespace) -> None:
-    from pipeline.train_stage import run_train
+    from pipeline.stages.train_stage import run_train
     run_train(load_params(args.params), args.kind, Path(args.windows), Path(args.models), Path(args.reports))
 
 
 def _models_report(args: argparse.Namespace) -> None:
-    from pipeline.train_stage import run_models_report
+    from pipeline.stages.train_stage import run_models_report
     run_models_report(Path(args.reports))
 
 
 def _tune_kalman(args: argparse.Namespace) -> None:
-    from pipeline.tune_stage import run_tune
+    from pipeline.stages.tune_stage import run_tune
     run_tune(load_params(args.params), Path(args.simulated), Path(args.models), Path(args.reports))
 
 
 def _train_kalman_net(args: argparse.Namespace) -> None:
-    from pipeline.kalman_net_stage import run_train_kalman_net
+    from pipeline.stages.kalman_net_stage import run_train_kalman_net
     run_train_kalman_net(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
                          Path(args.reports))
 
 
 def _train_association(args: argparse.Namespace) -> None:
-    from pipeline.association_stage import run_train_association
+    from pipeline.stages.association_stage import run_train_association
     run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
 
 
 def _train_lstm_update(args: argparse.Namespace) -> None:
-    from pipeline.lstm_update_stage import run_train_lstm_update
+    from pipeline.stages.lstm_update_stage import run_train_lstm_update
     run_train_lstm_update(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
                           Path(args.reports))
 
 
 def _fusion(args: argparse.Namespace) -> None:
-    from pipeline.fusion_stage import run_fusion
+    from pipeline.stages.fusion_stage import run_fusion
     run_fusion(load_params(args.params), Path(args.models), Path(args.reports))
 
 
 def _compare(args: argparse.Namespace) -> None:
-    from pipeline.compare_stage import run_compare
+    from pipeline.stages.compare_stage import run_compare
     run_compare(load_params(args.params), Path(args.windows), Path(args.models), Path(args.reports))
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from pipeline.evaluate_stage import run_evaluate
+    from pipeline.stages.evaluate_stage import run_evaluate
     run_evaluate(load_params(args.params), Path(args.simulated), Path(args.routes), Path(args.models),
                  Path(args.reports))
 
 
 def _evaluate_sites(args: argparse.Namespace) -> None:
-    from pipeline.evaluate_sites_stage import run_evaluate_sites
+    from pipeline.stages.evaluate_sites_stage import run_evaluate_sites
     run_evaluate_sites(load_params(args.params), Path(args.models), Path(args.reports))
 
 
 def _evaluate_scenes(args: argparse.Namespace) -> None:
-    from pipeline.evaluate_scenes_stage import run_evaluate_scenes
+    from pipeline.stages.evaluate_scenes_stage import run_evaluate_scenes
     run_evaluate_scenes(load_params(args.params), Path(args.scenes), Path(args.models), Path(args.reports))
 
 
 def _track(args: argparse.Namespace) -> None:
-    from pipeline.track_command import run_track
+    from pipeline.stages.track_command import run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
               args.date, args.method, args.window, Path(args.models),
@@ -113,18 +113,18 @@ def _track(args: argparse.Namespace) -> None:
 
 
 def _associate(args: argparse.Namespace) -> None:
-    from pipeline.associate_command import run_associate
+    from pipeline.stages.associate_command import run_associate
     run_associate(load_params(args.params), [Path(p) for p in args.tracks], [Path(p) for p in args.radar],
                   args.method, Path(args.models), Path(args.pairs), Path(args.fused))
 
 
 def _asterix_export(args: argparse.Namespace) -> None:
-    from pipeline.track_command import export_asterix
+    from pipeline.stages.track_command import export_asterix
     export_asterix(Path(args.plots), Path(args.radar), args.scenario, Path(args.out))
 
 
 def _readme(args: argparse.Namespace) -> int:
-    from pipeline.readme import update_readme
+    from pipeline.reports.readme import update_readme
     changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
     if args.check and changed:
         log.error("%s: generated tables are out of date; run `python -m pipeline readme`", args.readme)

@@ -17,8 +17,8 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
-from pipeline.track_association import METHODS as ASSOCIATION_METHODS
-from pipeline.track_fusion import CRITERIA as FUSION_CRITERIA
+from pipeline.association.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.association.track_fusion import CRITERIA as FUSION_CRITERIA
 from pipeline.tracker import registry
 
 # New strategies go at the end: a route's random stream is seeded by its strategy's index here.
@@ -139,7 +139,7 @@ class Split:
 
 @dataclass(frozen=True)
 class Scenes:
-    """Multi-target scenes (`pipeline.scenes`): `count` scenes of `aircraft` aircraft each, over
+    """Multi-target scenes (`pipeline.simulation.scenes`): `count` scenes of `aircraft` aircraft each, over
     `duration_s`, every one with a crossing, a formation and aircraft entering and leaving coverage."""
 
     count: int
@@ -293,7 +293,7 @@ class Evaluate:
     references: tuple[str, ...]
     ospa_cutoff_m: float
     ospa_order: float
-    gospa_cutoff_m: float           # GOSPA (alpha = 2, `pipeline.gospa`): cutoff c ...
+    gospa_cutoff_m: float           # GOSPA (alpha = 2, `pipeline.bench.gospa`): cutoff c ...
     gospa_order: float              # ... and order p
     example_scenarios: int
     example_run: str
@@ -433,7 +433,7 @@ class LSTMUpdate:
 
 @dataclass(frozen=True)
 class Associate:
-    """`python -m pipeline associate` on two track tables (params.yaml `associate`; pipeline/common_time_states.py)."""
+    """`python -m pipeline associate` on two track tables (params.yaml `associate`; pipeline/association/common_time_states.py)."""
 
     step_s: float                   # common times this far apart over the tables' overlap
     max_age_s: float                # a track's last update no older than this at a common time
@@ -460,7 +460,7 @@ class FusionRadar:
 
 @dataclass(frozen=True)
 class Fusion:
-    """The fusion stage (params.yaml `fusion`; pipeline/radar_fusion.py)."""
+    """The fusion stage (params.yaml `fusion`; pipeline/bench/radar_fusion.py)."""
 
     scenes: int
     tracker: str

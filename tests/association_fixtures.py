@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.association_scenes import SceneSetting, make_tracks
+from pipeline.association.association_scenes import SceneSetting, make_tracks
 
 SETTING = SceneSetting(targets=(16, 32), area_m=10000.0, scan_period_s=4.0, track_points=5, noise_m=(50.0, 70.0),
                        detection_probability=0.9, speed_mps=(100.0, 300.0), acceleration_std_mps2=1.0,

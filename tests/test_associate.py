@@ -15,12 +15,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from scipy.stats import chi2
 import torch
+from scipy.stats import chi2
 
-from pipeline import association_net, association_report, cli, geodesy
+from pipeline import cli
+from pipeline.association import association_net
+from pipeline.association.track_association import METHODS
+from pipeline.bench import association_report
+from pipeline.geometry import geodesy
 from pipeline.params import ParamError
-from pipeline.track_association import METHODS
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from pipeline.association_memory import continue_pairs, pair_statistics, with_memory
-from pipeline.common_time_states import Snapshot
+from pipeline.association.association_memory import continue_pairs, pair_statistics, with_memory
+from pipeline.association.common_time_states import Snapshot
 
 KEEP = 0.999999
 KEEP_GATE = chi2.ppf(KEEP, 4)   # 33.4

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import association_net, io
-from pipeline.association_net import AssociationNet, AssociationNetConfig, TrainConfig, decide
-from pipeline.association_report import inputs_of
-from pipeline.association_scenes import make_scene
+from pipeline import io
+from pipeline.association import association_net
+from pipeline.association.association_net import AssociationNet, AssociationNetConfig, TrainConfig, decide
+from pipeline.association.association_scenes import make_scene
+from pipeline.bench.association_report import inputs_of
 from tests.association_fixtures import SETTING, straight_aircraft
 
 CONFIG = AssociationNetConfig(size=32, diameter_m=14142.0, feature_hidden=(8, 16, 36), decision_hidden=8)

@@ -8,7 +8,7 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
-from pipeline.association_scenes import make_scene, make_tracks
+from pipeline.association.association_scenes import make_scene, make_tracks
 from tests.association_fixtures import SETTING
 
 

@@ -6,8 +6,8 @@ import json
 import sqlite3
 from pathlib import Path
 
-from pipeline import association_net
-from pipeline.association_report import METHODS
+from pipeline.association import association_net
+from pipeline.bench.association_report import METHODS
 from tests.project import run_pipeline, tiny_params_tree, write_params
 
 

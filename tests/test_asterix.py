@@ -1,7 +1,7 @@
 """ASTERIX CAT048 plots and CAT034 north markers: the round trip, the clock across midnight, damaged
 files, and `track --asterix` / `asterix-export` end to end on a simulated scenario.
 
-Hand-made plots are quantised with pipeline.asterix_units first, as the simulator quantises its
+Hand-made plots are quantised with pipeline.geometry.asterix_units first, as the simulator quantises its
 plots, so what is encoded is exactly representable and the decoded values must agree to the
 resolution of each item.
 """
@@ -18,9 +18,12 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import asterix_io, asterix_units as units, cli, io, simulate
+from pipeline import cli, io
+from pipeline.geometry import asterix_units as units
 from pipeline.io import InputError
-from pipeline.plot_table import RADAR_INPUT_SCHEMA, read_asterix_plots
+from pipeline.recordings import asterix_io
+from pipeline.recordings.plot_table import RADAR_INPUT_SCHEMA, read_asterix_plots
+from pipeline.simulation import simulate
 from tests import tracker_fixtures as tf
 from tests.project import run_pipeline, tiny_params_tree, write_params
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import baselines, geodesy
+from pipeline.filters import baselines
+from pipeline.geometry import geodesy
 from pipeline.params import Radar
 
 T0 = 1.78e9  # an instant in 2026, in Unix seconds
@@ -49,12 +50,12 @@ def straight_tracks(radar: Radar, count: int, steps: int, seed: int) -> tuple[np
 
 def covariances(positions: np.ndarray, radar: Radar) -> np.ndarray:
     """Measurement covariance of every plot of (N x L x 3) positions: (N x L x 3 x 3)."""
-    return baselines.measurement_covariance(positions.reshape(-1, 3), radar).reshape(*positions.shape, 3)
+    return geodesy.measurement_covariance(positions.reshape(-1, 3), radar).reshape(*positions.shape, 3)
 
 
 def test_measurement_covariance_is_range_across_azimuth_and_altitude_in_radar_axes(radar):
     """200 km due north: std (range * sigma_azimuth east, sigma_range north, sigma_altitude up), no correlation."""
-    covariance = baselines.measurement_covariance(to_ecef(np.array([[0.0, 200e3, 0.0]]), radar), radar)[0]
+    covariance = geodesy.measurement_covariance(to_ecef(np.array([[0.0, 200e3, 0.0]]), radar), radar)[0]
     rotation = geodesy.enu_rotation(radar.latitude_deg, radar.longitude_deg)
     enu = rotation @ covariance @ rotation.T
     expected_std = [200e3 * np.radians(radar.sigma_azimuth_deg), radar.sigma_range_m, radar.sigma_altitude_m]
@@ -66,7 +67,7 @@ def test_measurement_covariance_is_range_across_azimuth_and_altitude_in_radar_ax
                          ids=["north", "north-west", "overhead"])
 def test_measurement_covariance_is_symmetric_positive_definite(radar, local):
     """Anywhere in coverage, even straight above the radar, the covariance is a valid one."""
-    covariance = baselines.measurement_covariance(to_ecef(np.array([local]), radar), radar)[0]
+    covariance = geodesy.measurement_covariance(to_ecef(np.array([local]), radar), radar)[0]
     np.testing.assert_allclose(covariance, covariance.T, rtol=0.0, atol=1e-9 * np.abs(covariance).max())
     assert np.linalg.eigvalsh(covariance).min() > 0.0
 

@@ -2,7 +2,7 @@
 
 Synthetic flights are made in a flat local frame (east, north, up in metres) with plots of known
 Gaussian noise (50, 50, 30 m standard deviation) every 6 s: the filters are the same in any
-Cartesian frame (`pipeline.motion_models`), so no geodesy is needed to check them. Where the code
+Cartesian frame (`pipeline.filters.motion_models`), so no geodesy is needed to check them. Where the code
 works on ECEF plots near a radar (the batched filters, tuning material), the same flights are placed
 around the radar with pymap3d and get the radar's converted-measurement noise; the tune_kalman stage
 runs on a few minutes of the simulator's plots.
@@ -21,13 +21,16 @@ import pytest
 from filterpy.common import Q_discrete_white_noise
 from scipy.stats import binom, chi2
 
-from pipeline import (baselines, batch_filters, classical_filters, geodesy, io, motion_models, ospa, routes, simulate,
-                      tuning)
-from pipeline.classical_filters import FilterSettings
-from pipeline.compare_stage import tuning_table
+from pipeline import io
+from pipeline.bench import ospa
+from pipeline.filters import batch_filters, classical_filters, motion_models, tuning
+from pipeline.filters.classical_filters import FilterSettings
+from pipeline.geometry import geodesy
 from pipeline.params import ParamError, parse_params
+from pipeline.simulation import routes, simulate
+from pipeline.stages.compare_stage import tuning_table
+from pipeline.stages.tune_stage import run_tune
 from pipeline.tracker.management import ThesisWeights
-from pipeline.tune_stage import run_tune
 
 DT = 6.0                                  # scan period, s
 SCANS = 60
@@ -166,7 +169,7 @@ def to_ecef(enu: np.ndarray, radar) -> np.ndarray:
 
 def radar_plots(truth_ecef: np.ndarray, radar, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Plots of true ECEF positions with the radar's noise, and that noise's (converted-measurement) covariance."""
-    covariance = baselines.measurement_covariance(truth_ecef, radar)
+    covariance = geodesy.measurement_covariance(truth_ecef, radar)
     noise = np.einsum("nij,nj->ni", np.linalg.cholesky(covariance), rng.normal(size=truth_ecef.shape))
     return truth_ecef + noise, covariance
 
@@ -351,7 +354,7 @@ def test_target_sequences_restart_after_gaps_and_routes_and_skip_the_burn_in(rad
         following = steps[1:][~material.restart[row, steps[1:]]]
         assert (material.times[row, following] > material.times[row, following - 1]).all()
     np.testing.assert_allclose(material.covariances[valid],
-                               baselines.measurement_covariance(material.positions[valid], radar))
+                               geodesy.measurement_covariance(material.positions[valid], radar))
 
 
 @pytest.fixture(scope="module")

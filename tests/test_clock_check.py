@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.clock_check import MIN_TIMES, clock_evidence
-from pipeline.common_time_states import Snapshot
+from pipeline.association.clock_check import MIN_TIMES, clock_evidence
+from pipeline.association.common_time_states import Snapshot
 from tests import tracker_fixtures as tf
 
 ASSOCIATION = tf.make_params().association   # max_bias_m 600 m, max_time_offset_s 5 s, gate 0.999

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numpy._core._multiarray_umath import __cpu_dispatch__
 
-from pipeline import strict_math
+from pipeline.geometry import strict_math
 from tests.project import environment, run_pipeline, tiny_params_tree, write_params
 
 # Every SIMD extension NumPy dispatches to at run time (X86_V3, X86_V4, AVX512_ICL, ... on x86-64

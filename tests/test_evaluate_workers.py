@@ -17,8 +17,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from pipeline import io, routes, simulate
-from pipeline.evaluate_stage import run_evaluate
+from pipeline import io
+from pipeline.simulation import routes, simulate
+from pipeline.stages.evaluate_stage import run_evaluate
 from tests import tracker_fixtures as tf
 
 # Third-party deprecation notices (Lightning's pytree use), not ours.

@@ -14,8 +14,15 @@ from urllib.parse import urlparse
 import mlflow
 import pytest
 
-from pipeline.experiment_tracking import (EXPERIMENT_KIND_TAG, MODEL_TRAINING, TrackingError, check_tracking_store,
-                                         run_tags, session, tracking_uri)
+from pipeline.learning.experiment_tracking import (
+    EXPERIMENT_KIND_TAG,
+    MODEL_TRAINING,
+    TrackingError,
+    check_tracking_store,
+    run_tags,
+    session,
+    tracking_uri,
+)
 from pipeline.params import parse_params
 from tests.project import environment
 from tests.servers import run_queue
@@ -97,7 +104,7 @@ LOG_RUN = '''\
 import mlflow
 import yaml
 
-from pipeline.experiment_tracking import check_tracking_store, run_tags, tracking_uri
+from pipeline.learning.experiment_tracking import check_tracking_store, run_tags, tracking_uri
 
 uri = tracking_uri("sqlite:///mlflow.db")
 check_tracking_store(uri, "radar-nn-tracker", "log_run")
@@ -276,7 +283,7 @@ def test_a_filter_training_run_is_failed_when_its_stage_raises_and_finished_othe
     goes on), one that returns leaves it FINISHED."""
     from dataclasses import asdict
 
-    from pipeline.experiment_tracking import filter_training_run
+    from pipeline.learning.experiment_tracking import filter_training_run
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     params = make_params(1, {"training.tracking_uri": uri})
     data = tmp_path / "plots.parquet"

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import fusion_bias_sweep
-from pipeline.common_time_states import Snapshot
+from pipeline.association.common_time_states import Snapshot
+from pipeline.bench import fusion_bias_sweep
 from tests import tracker_fixtures as tf
 
 

@@ -3,7 +3,7 @@ better radar, each method's pair counts, and the bias sweep's cells."""
 
 from __future__ import annotations
 
-from pipeline import fusion_tables
+from pipeline.reports import fusion_tables
 
 SHARES = {"localisation": 0.0, "missed": 0.0, "false": 0.0}
 FUSION = {

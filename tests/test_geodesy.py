@@ -9,7 +9,7 @@ import pymap3d
 import pymap3d.rcurve
 import pytest
 
-from pipeline import geodesy
+from pipeline.geometry import geodesy
 
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
 

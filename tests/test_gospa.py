@@ -1,4 +1,4 @@
-"""GOSPA (alpha = 2) with its parts, and the identity metrics on its assignment (`pipeline.gospa`),
+"""GOSPA (alpha = 2) with its parts, and the identity metrics on its assignment (`pipeline.bench.gospa`),
 on hand-computed examples; GOSPA's metric properties on random sets; its wiring into the
 single-target evaluation.
 
@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from pipeline import compare_stage, evaluation, gospa, ospa
+from pipeline.bench import evaluation, gospa, ospa
+from pipeline.bench.tracker_metrics import RouteCounts
+from pipeline.reports import comparison_tables
 from pipeline.tracker.management import ThesisWeights
-from pipeline.tracker_metrics import RouteCounts
 
 C, P = 1000.0, 2.0
 HALF = C ** P / 2.0  # 500 000 m^2
@@ -239,9 +240,9 @@ def test_gospa_table_best_first_and_none_for_reports_before_gospa():
             "oracle_reference": {"GOSPA": 120.0, "GOSPA_localisation": 60.0, "GOSPA_missed": 60.0, "GOSPA_false": 0.0,
                                  "track_switches": 0, "tracks_per_truth": 1.0, "track_purity": float("nan")},
             "old_run": {"OSPA": 250.0}}
-    lines = compare_stage.gospa_table(runs).splitlines()
+    lines = comparison_tables.gospa_table(runs).splitlines()
     assert lines[0] == ("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track switches | "
                         "tracks assigned per aircraft | track purity |")
     assert lines[2:] == ["| oracle_reference | 120 | 60 | 60 | 0 | 0 | 1.00 | n/a |",
                          "| via_4000 | 300 | 100 | 150 | 50 | 3 | 1.50 | 0.988 |"]
-    assert compare_stage.gospa_table({"via_4000": {"OSPA": 250.0, "GOSPA": None}}) == ""
+    assert comparison_tables.gospa_table({"via_4000": {"OSPA": 250.0, "GOSPA": None}}) == ""

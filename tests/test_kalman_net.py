@@ -1,4 +1,4 @@
-"""The network-scaled Kalman filter (`pipeline.kalman_net`) and the gradient-tuned filters (`pipeline.gradient_tuning`).
+"""The network-scaled Kalman filter (`pipeline.learning.kalman_net`) and the gradient-tuned filters (`pipeline.filters.gradient_tuning`).
 
 Pinned to scales of 1 the network-scaled filter is its base Kalman filter; gradients reach the
 network through the whole truncated window and stop at its start; a gradient-tuned R scale learns
@@ -12,17 +12,19 @@ import pyarrow as pa
 import pytest
 import torch
 
-from pipeline import batch_filters, io, kalman_net, kalman_net_stage
-from pipeline.classical_filters import FilterSettings
-from pipeline.filter_training import DescentConfig, descend
-from pipeline.gradient_tuning import TunedFilter
+from pipeline import io
+from pipeline.filters import batch_filters
+from pipeline.filters.classical_filters import FilterSettings
+from pipeline.filters.gradient_tuning import TunedFilter
+from pipeline.filters.torch_filters import FilterSpec, SequenceBatch, filter_sequences
 from pipeline.io import InputError
-from pipeline.kalman_net import KalmanNet, KalmanNetConfig
+from pipeline.learning import kalman_net
+from pipeline.learning.filter_training import DescentConfig, descend
+from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
 from pipeline.params import ParamError, parse_params
-from pipeline.torch_filters import FilterSpec, SequenceBatch, filter_sequences
+from pipeline.stages import kalman_net_stage
 from tests.test_classical import plots_table, radar_plots, random_flight, realistic_rows
 from tests.test_torch_filters import tensors
-
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -177,7 +179,7 @@ def test_saved_model_loads_and_gives_per_step_scales(tmp_path, radar):
     rows = realistic_rows(radar)
     np.testing.assert_array_equal(loaded(batch_of(rows)).position.detach().numpy(),
                                   model(batch_of(rows)).position.detach().numpy())
-    from pipeline import torch_filters
+    from pipeline.filters import torch_filters
     times, positions, covariances, _, _ = tensors(*rows)
     state = torch_filters.start(loaded.base, positions[:1, 0], covariances[:1, 0])
     step = torch_filters.Step(1, state, positions[:1, 1], covariances[:1, 1], times[:1, 1] - times[:1, 0])

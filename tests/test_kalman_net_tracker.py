@@ -13,9 +13,10 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from pipeline import io, kalman_net
-from pipeline.kalman_net import KalmanNet, KalmanNetConfig
-from pipeline.torch_filters import SequenceBatch
+from pipeline import io
+from pipeline.filters.torch_filters import SequenceBatch
+from pipeline.learning import kalman_net
+from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
 from pipeline.tracker import registry
 from pipeline.tracker.kalman import KalmanEstimator
 from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator

@@ -1,5 +1,5 @@
 """The tracker's classical estimator and gate (`pipeline.tracker.kalman` on the one Kalman core,
-`pipeline.batch_filters`) against filterpy's objects (`pipeline.classical_filters`), step by step.
+`pipeline.filters.batch_filters`) against filterpy's objects (`pipeline.filters.classical_filters`), step by step.
 
 A turning flight near the radar with 50 m noise and one missed scan, plots placed in ECEF with their
 converted-measurement covariance. No networks are needed.
@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import classical_filters, geodesy
+from pipeline.filters import classical_filters
+from pipeline.geometry import geodesy
+from pipeline.tracker import registry
 from pipeline.tracker.gate import ChiSquareGate
 from pipeline.tracker.kalman import KalmanEstimator
-from pipeline.tracker import registry
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track

@@ -1,4 +1,4 @@
-"""The LSTM update on a Kalman prediction (`pipeline.lstm_update`, issue 18): the prediction it starts
+"""The LSTM update on a Kalman prediction (`pipeline.learning.lstm_update`, issue 18): the prediction it starts
 from, its MC-dropout spread, a straight track, and bad params."""
 
 from __future__ import annotations
@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import lstm_update, motion_models
-from pipeline.lstm_update import LSTMUpdate, LSTMUpdateConfig
+from pipeline.filters import motion_models
+from pipeline.filters.torch_filters import SequenceBatch
+from pipeline.learning import lstm_update
+from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
 from pipeline.params import ParamError, parse_params
-from pipeline.torch_filters import SequenceBatch
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -216,7 +217,7 @@ def test_estimate_factors_recover_the_spread_and_plot_shares_of_gaussian_errors(
 def test_compare_puts_the_lstm_update_in_the_estimator_table_with_every_column():
     """The compare stage's hold-out table: one row per estimator, best first, with turns, straight
     flight, ANEES (marked when inside its bounds) and the share within each share of the range."""
-    from pipeline.compare_stage import estimator_table
+    from pipeline.stages.compare_stage import estimator_table
 
     def scored(mean: float, anees: float) -> dict:
         return {"mean_error_m": mean, "rmse_m": mean * 1.3, "p95_error_m": mean * 2.7, "anees": anees,
@@ -240,7 +241,7 @@ def test_bounded_gate_rejects_a_plot_beyond_the_window_however_wide_the_covarian
     from tests import tracker_fixtures as tf
 
     params = tf.make_params()
-    from pipeline import geodesy
+    from pipeline.geometry import geodesy
     site = geodesy.radar_site_ecef(params.radar)
     offsets = np.array([[100e3, 0.0, 0.0], [100e3, 5000.0, 0.0], [100e3, 1000.0, 0.0]])
     features = np.column_stack([np.arange(3) * 6.0, site + offsets, np.linalg.norm(offsets, axis=1)])

@@ -13,9 +13,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline import geodesy
-from pipeline.classical_filters import FilterSettings
-from pipeline.evaluation import run_management
+from pipeline.bench.evaluation import run_management
+from pipeline.bench.tracker_metrics import markdown_table
+from pipeline.filters.classical_filters import FilterSettings
+from pipeline.geometry import geodesy
 from pipeline.params import parse_params
 from pipeline.tracker import registry
 from pipeline.tracker.m_of_n import CONFIRMED, MOfN
@@ -23,7 +24,6 @@ from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
 from pipeline.tracker.updates import confirmed_associations
-from pipeline.tracker_metrics import markdown_table
 from tests import tracker_fixtures as tf
 from tests.test_tracker_loop import composition, plots
 

@@ -26,9 +26,9 @@ import pytest
 import yaml
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
-from pipeline.experiment_tracking import DVC_EXPERIMENT_TAG, SESSION_TAG, data_hash
-from pipeline.mlflow_models import FILE_DIGEST_TAG, registered_name
-from pipeline.networks import KINDS
+from pipeline.learning.experiment_tracking import DVC_EXPERIMENT_TAG, SESSION_TAG, data_hash
+from pipeline.learning.mlflow_models import FILE_DIGEST_TAG, registered_name
+from pipeline.learning.networks import KINDS
 from tests.project import REPOSITORY
 from tests.servers import INSTALL_HINT, mlflow_server
 

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicHermiteSpline
 
-from pipeline import asterix_units, geodesy, radar as radar_model, routes, simulate
+from pipeline.geometry import asterix_units, geodesy
+from pipeline.simulation import radar as radar_model
+from pipeline.simulation import routes, simulate
 
 # CAT048 time of day resolution (I048/140), written out so a change of the module's constant is caught.
 TIME_OF_DAY_STEP_S = 1.0 / 128.0

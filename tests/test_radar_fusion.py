@@ -8,7 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from pipeline import geodesy, radar_fusion
+from pipeline.bench import radar_fusion
+from pipeline.geometry import geodesy
 from pipeline.params import ParamError
 from tests import tracker_fixtures as tf
 

@@ -14,9 +14,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline import geodesy, plot_table
+from pipeline.geometry import geodesy
 from pipeline.params import Radar
-from pipeline.plot_table import Plots
+from pipeline.recordings import plot_table
+from pipeline.recordings.plot_table import Plots
 from pipeline.tracker import registry
 from pipeline.tracker.assigner import GlobalNearestPerScan
 from pipeline.tracker.m_of_n import MOfN

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import geodesy, routes
+from pipeline.geometry import geodesy
 from pipeline.params import STRATEGIES
+from pipeline.simulation import routes
 
 ROUTES_PER_STRATEGY = 8
 # geodesy.local_to_geodetic maps the planning plane to the earth with under 0.3 % distortion of

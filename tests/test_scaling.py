@@ -8,7 +8,8 @@ import numpy as np
 import pymap3d
 import pytest
 
-from pipeline import geodesy, materials, scaling
+from pipeline.geometry import geodesy
+from pipeline.learning import materials, scaling
 
 # The thesis's scale values (params.yaml `windows:`): dT_max, X/Y/Z maxDiff, R_max.
 DT_MAX_S, MAX_DIFF_M, R_MAX_M = 18.0, 400.0, 400000.0

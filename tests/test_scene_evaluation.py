@@ -1,4 +1,4 @@
-"""Trackers on multi-target scenes (`pipeline.scene_evaluation`, stage `evaluate_scenes`): scripted
+"""Trackers on multi-target scenes (`pipeline.bench.scene_evaluation`, stage `evaluate_scenes`): scripted
 scenes of two aircraft, and the stage on a tiny generated scene. Only the classical trackers and
 the oracle, with the filters at params' start values (no network needed)."""
 
@@ -11,9 +11,12 @@ import numpy as np
 import pyarrow.compute as pc
 import pytest
 
-from pipeline import compare_stage, io, routes, scene_evaluation, scenes, simulate
-from pipeline.evaluate_scenes_stage import run_evaluate_scenes
-from pipeline.routes import PlannedRoute
+from pipeline import io
+from pipeline.bench import scene_evaluation
+from pipeline.reports import comparison_tables
+from pipeline.simulation import routes, scenes, simulate
+from pipeline.simulation.routes import PlannedRoute
+from pipeline.stages.evaluate_scenes_stage import run_evaluate_scenes
 from pipeline.tracker.updates import confirmed_associations
 from tests import tracker_fixtures as tf
 
@@ -95,7 +98,7 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
         parts = sum(values[f"GOSPA_{part}"] for part in ("localisation", "missed", "false"))
         assert parts == pytest.approx(values["GOSPA"]) and values["fragmentation"] >= 0.0
     assert (tmp_path / "reports" / "scene_example.png").read_bytes()[:4] == b"\x89PNG"
-    table = compare_stage.scenes_table(report["runs"])
+    table = comparison_tables.scenes_table(report["runs"])
     assert table.splitlines()[0].startswith("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track "
                                             "switches | fragmentation |")
     assert len(table.splitlines()) == 2 + 3

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.scene_tensor import pair_features, scene_tensor
-from pipeline.track_association import TrackInputError
+from pipeline.association.scene_tensor import pair_features, scene_tensor
+from pipeline.association.track_association import TrackInputError
 
 
 def test_two_by_two_scene_tensor_value_by_value():

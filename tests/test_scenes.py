@@ -1,4 +1,4 @@
-"""Multi-target scenes (`pipeline.scenes`): the placed situations in every scene, the others
+"""Multi-target scenes (`pipeline.simulation.scenes`): the placed situations in every scene, the others
 apart when they appear, the same scenes for the same seed, and bad params stopped by name."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ import numpy as np
 import pyarrow.compute as pc
 import pytest
 
-from pipeline import cli, scenes
+from pipeline import cli
 from pipeline.params import ParamError, parse_params
+from pipeline.simulation import scenes
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 

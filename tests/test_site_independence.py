@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import materials, routes, simulate, windows
+from pipeline.learning import materials, windows
+from pipeline.simulation import routes, simulate
 
 SITES = [(60.3172, 24.9633), (-60.0, -60.0), (0.0, 179.9), (35.0, -179.9), (69.65, 18.96)]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.system_tracks import SystemTracks
+from pipeline.association.system_tracks import SystemTracks
 
 
 def test_a_fused_track_keeps_its_number_while_either_local_track_continues():

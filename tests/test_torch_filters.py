@@ -1,6 +1,6 @@
-"""The differentiable torch Kalman core (`pipeline.torch_filters`) and Singer's model.
+"""The differentiable torch Kalman core (`pipeline.filters.torch_filters`) and Singer's model.
 
-The torch filters are checked against the NumPy core (`pipeline.batch_filters`), step by step and
+The torch filters are checked against the NumPy core (`pipeline.filters.batch_filters`), step by step and
 over padded, restarted sequences, and Singer's model against filterpy's KalmanFilter; then what the
 torch side adds: per-step scales, gradients cut by truncated BPTT, and learning a noise scale.
 """
@@ -13,8 +13,8 @@ import torch
 from filterpy.kalman import KalmanFilter
 from scipy.linalg import expm
 
-from pipeline import batch_filters, motion_models, torch_filters, tuning
-from pipeline.torch_filters import FilterSpec, Scales, SequenceBatch
+from pipeline.filters import batch_filters, motion_models, torch_filters, tuning
+from pipeline.filters.torch_filters import FilterSpec, Scales, SequenceBatch
 from tests.test_classical import plots_table, radar_plots, random_flight, realistic_rows, settings
 
 NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}

@@ -7,9 +7,13 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from pipeline.bias_robust_association import associate_bias_robust
-from pipeline.track_association import (TrackInputError, associate_double_threshold, associate_statistical,
-                                        statistical_distances)
+from pipeline.association.bias_robust_association import associate_bias_robust
+from pipeline.association.track_association import (
+    TrackInputError,
+    associate_double_threshold,
+    associate_statistical,
+    statistical_distances,
+)
 from tests.association_fixtures import straight_aircraft
 
 GATE = 0.999

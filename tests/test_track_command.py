@@ -20,12 +20,16 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import (association_net, association_report, baselines, cli, external_sort, geodesy, io, model_store,
-                      plot_table, streamed_recording, track_tables)
-from pipeline import track_command as track_command_module
-from pipeline.track_command import track_recording
-from pipeline.tracker import registry
+from pipeline import cli, io
+from pipeline.association import association_net, track_tables
+from pipeline.bench import association_report
+from pipeline.geometry import geodesy
+from pipeline.learning import model_store
+from pipeline.recordings import external_sort, plot_table, streamed_recording
+from pipeline.stages import track_command as track_command_module
+from pipeline.tracker import recording, registry
 from pipeline.tracker.loading import load_models
+from pipeline.tracker.recording import TRACK_SCHEMA, track_recording
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 
@@ -86,9 +90,9 @@ def test_two_radars_plots_each_carry_their_own_radars_covariance(params, tmp_pat
     for radar_id, radar in sites.items():
         own = table.radar_id == radar_id
         other = sites[3 - radar_id]
-        np.testing.assert_allclose(table.covariance[own], baselines.measurement_covariance(table.position[own], radar),
+        np.testing.assert_allclose(table.covariance[own], geodesy.measurement_covariance(table.position[own], radar),
                                    rtol=1e-12)
-        assert not np.allclose(table.covariance[own], baselines.measurement_covariance(table.position[own], other),
+        assert not np.allclose(table.covariance[own], geodesy.measurement_covariance(table.position[own], other),
                                rtol=1e-3)
         slant, _, _ = geodesy.true_measurement(table.position[own], radar)
         np.testing.assert_allclose(slant, table.range_m[own], atol=30.0)
@@ -404,7 +408,7 @@ def test_a_recording_without_plots_gives_an_empty_track_table_and_says_so(params
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(6))
     assert track_command(tmp_path, filters_only, "kalman_cv", plots.slice(0, 0), radars) == 0
     tracks = pq.read_table(tmp_path / "tracks.parquet")
-    assert tracks.num_rows == 0 and tracks.schema.equals(track_command_module.TRACK_SCHEMA)
+    assert tracks.num_rows == 0 and tracks.schema.equals(TRACK_SCHEMA)
     summary = json.loads((tmp_path / "tracks.summary.json").read_text())
     assert summary["plots_tracked"] == summary["track_updates"] == summary["confirmed_tracks"] == 0
     assert "no plots to track" in caplog.text
@@ -445,7 +449,7 @@ def test_a_radars_own_error_figures_override_params_for_that_radar_only(params, 
     assert table.radars[2] == second and table.radars[1] == params.radar
     for radar_id, radar in ((1, params.radar), (2, second)):
         rows = table.radar_id == radar_id
-        np.testing.assert_allclose(table.covariance[rows], baselines.measurement_covariance(table.position[rows], radar),
+        np.testing.assert_allclose(table.covariance[rows], geodesy.measurement_covariance(table.position[rows], radar),
                                    rtol=1e-12)
 
 
@@ -807,13 +811,13 @@ def test_a_failure_while_tracking_leaves_no_output_and_no_summary(params, tmp_pa
     temporary file; an earlier output of the same name is left as it was."""
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
     (tmp_path / "tracks.parquet").write_bytes(b"earlier")
-    real = track_command_module.track_chunks
+    real = recording.track_chunks
 
     def failing(chunks, tracker):
         yield next(real(chunks, tracker))
         raise RuntimeError("tracker failed")
 
-    monkeypatch.setattr(track_command_module, "track_chunks", failing)
+    monkeypatch.setattr(recording, "track_chunks", failing)
     with pytest.raises(RuntimeError, match="tracker failed"):
         track_command(tmp_path, filters_only, "imm", plots, radars, {"compute.chunk_plots": 10})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["models", "params.yaml", "recording", "tracks.parquet"]
@@ -863,8 +867,8 @@ def slow_trained_lstm_update(models: Path) -> Path:
     """models/lstm_update.pt: an LSTM update (untrained: the alpha-beta filter it starts as, alpha = beta =
     0.5, MC dropout 0.3 over 8 copies) whose young tracks' copies start at velocities of 150 m/s spread,
     as a model trained on targets up to about 450 m/s (3 sigma) carries."""
-    from pipeline import kalman_net
-    from pipeline.lstm_update import LSTMUpdate, LSTMUpdateConfig
+    from pipeline.learning import kalman_net
+    from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
     config = LSTMUpdateConfig(hidden=8, dropout=0.3, mc_samples=8, detach_prediction=True, position_scale_m=1000.0,
                               velocity_scale_mps=400.0, acceleration_scale_mps2=10.0, time_scale_s=6.0,
                               initial_alpha=0.5, initial_beta=0.5, floor_m=1.0, start_velocity_std_mps=150.0,

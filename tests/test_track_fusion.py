@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.track_association import TrackInputError
-from pipeline.track_fusion import fuse_pairs
+from pipeline.association.track_association import TrackInputError
+from pipeline.association.track_fusion import fuse_pairs
 from tests.association_fixtures import straight_aircraft
 
 

@@ -14,12 +14,13 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from pipeline import geodesy, table_association
-from pipeline.common_time_states import common_frame, common_snapshots
+from pipeline.association import table_association
+from pipeline.association.common_time_states import common_frame, common_snapshots
+from pipeline.association.track_association import positive_definite
+from pipeline.association.track_tables import COVARIANCE_CEILING_M2, track_table
+from pipeline.geometry import geodesy
 from pipeline.io import InputError
-from pipeline.track_association import positive_definite
-from pipeline.track_command import COVARIANCE_COLUMNS, TRACK_SCHEMA
-from pipeline.track_tables import COVARIANCE_CEILING_M2, track_table
+from pipeline.tracker.recording import COVARIANCE_COLUMNS, TRACK_SCHEMA
 from tests import tracker_fixtures as tf
 
 SITE = (60.3, 25.0, 60.0)

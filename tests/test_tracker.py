@@ -16,14 +16,16 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import cli, io, plot_table
+from pipeline import cli, io
+from pipeline.recordings import plot_table
+from pipeline.stages.track_command import run_track
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.network_estimator import NetworkEstimator
+from pipeline.tracker.recording import track_recording
 from pipeline.tracker.run import track
 from pipeline.tracker.tracks import LiveTracks
-from pipeline.track_command import run_track, track_recording
 from tests import tracker_fixtures as tf
 from tests.project import write_params
 

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from pipeline import io
-from pipeline.plot_table import NO_TARGET
+from pipeline.recordings.plot_table import NO_TARGET
+from pipeline.tracker import registry
 from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, TrueAssociation
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusFloorGate, RadiusGate, Scores, WindowGate
 from pipeline.tracker.management import ThesisWeights
-from pipeline.tracker import registry
 from pipeline.tracker.models import Models
 from pipeline.tracker.refusals import RefusalCounts, RefusalWatch, warn_refusals
 from pipeline.tracker.run import Composition, track, track_chunks

@@ -27,13 +27,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline.bench.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
 from pipeline.params import parse_params
+from pipeline.reports import comparison_tables
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.tracks import LiveTracks
 from pipeline.tracker.updates import COLUMNS
 from tests import tracker_fixtures as tf
-from pipeline import compare_stage
-from pipeline.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
 from tests.project import default_params_tree
 
 RULE = ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2, silence_s=12.0, silence_scans=2.0)
@@ -224,7 +224,7 @@ def test_continuity_table_puts_a_run_under_both_rules_side_by_side():
             "imm_4000": {"tracks_per_aircraft": 1.2, "ROCA": 0.95}, "oracle_reference": {"tracks_per_aircraft": 1.0}}
     by_strategy = {"imm_4000": {"random_turns": {"tracks_per_aircraft": 1.5, "ROCA": 0.9},
                                 "sustained_turns": {"tracks_per_aircraft": 1.0, "ROCA": 0.875}}}
-    lines = compare_stage.continuity_table(runs, by_strategy).splitlines()
+    lines = comparison_tables.continuity_table(runs, by_strategy).splitlines()
     assert lines[0] == "| tracker | all routes | random_turns | sustained_turns |"
     assert [line.split(" | ")[0] for line in lines[2:]] == ["| oracle_reference", "| via_4000", "| imm_4000",
                                                               "| imm_4000_m_of_n"]

@@ -22,14 +22,16 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import cli, io, model_eval, train_stage, training
-from pipeline.experiment_tracking import SESSION_TAG, data_hash
-from pipeline.mlflow_models import DATASET_DIGEST_CHARS, FILE_DIGEST_TAG, registered_name, versions_used
-from pipeline.model_store import load_model, save_model
-from pipeline.networks import KINDS, NetworkConfig, build_network
-from pipeline.scaling import plot_scaler
-from pipeline.train_stage import network_config
-from pipeline.training import TrainingConfig, WindowDataModule, train
+from pipeline import cli, io
+from pipeline.learning import model_eval, training
+from pipeline.learning.experiment_tracking import SESSION_TAG, data_hash
+from pipeline.learning.mlflow_models import DATASET_DIGEST_CHARS, FILE_DIGEST_TAG, registered_name, versions_used
+from pipeline.learning.model_store import load_model, save_model
+from pipeline.learning.networks import KINDS, NetworkConfig, build_network
+from pipeline.learning.scaling import plot_scaler
+from pipeline.learning.training import TrainingConfig, WindowDataModule, train
+from pipeline.stages import train_stage
+from pipeline.stages.train_stage import network_config
 from tests.project import REPOSITORY, environment, run_pipeline, tiny_params_tree, write_params
 
 # The networks of params.yaml (thesis 4.3).
@@ -431,7 +433,7 @@ for name in sys.argv[1:]:  # <kind>_<batch>: predict <name>.npy with the kind's 
 
 def test_a_logged_model_loaded_through_pyfunc_predicts_like_the_projects_loader(chain, registry, tmp_path):
     """`mlflow.pyfunc.load_model` on each registered version, in a Python process that cannot
-    import `pipeline`, gives the outputs of `pipeline.model_store.load_model` on the bundle the
+    import `pipeline`, gives the outputs of `pipeline.learning.model_store.load_model` on the bundle the
     same run wrote (to float32 rounding), for windows it never saw, one window or several."""
     rng = np.random.default_rng(3)
     windows = {f"{kind}_{size}": rng.normal(size=(size, config.input_steps, config.input_features)).astype(np.float32)
@@ -637,7 +639,7 @@ def test_a_store_removed_during_training_costs_no_model_and_ends_in_a_named_erro
         return real_train(*arguments, **keywords)
 
     monkeypatch.setattr(train_stage, "train", remove_the_store_then_train)
-    monkeypatch.setattr("pipeline.experiment_tracking.LOCAL_STORE_BACKOFF_S", 0.01)
+    monkeypatch.setattr("pipeline.learning.experiment_tracking.LOCAL_STORE_BACKOFF_S", 0.01)
     monkeypatch.chdir(tmp_path)
     code, log = train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)
     assert code == 2

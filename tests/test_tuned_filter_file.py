@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from pipeline import io
-from pipeline.classical_filters import FilterSettings, load_settings
+from pipeline.filters.classical_filters import FilterSettings, load_settings
 
 TUNED = {
     "cv": FilterSettings("cv", (1.5,), 110.0, 10.0, 0.05, 0.9),

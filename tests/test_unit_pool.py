@@ -1,4 +1,4 @@
-"""`pipeline.unit_pool`: units run here or in forkserver workers, each worker with its own state."""
+"""`pipeline.bench.unit_pool`: units run here or in forkserver workers, each worker with its own state."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from pipeline import unit_pool
+from pipeline.bench import unit_pool
 
 
 def prepared(offset: int) -> dict:

@@ -29,7 +29,7 @@ import mlflow
 import pytest
 import yaml
 
-from pipeline.model_store import load_model
+from pipeline.learning.model_store import load_model
 from tests.project import copy_repository, environment, tiny_params_tree, write_params
 
 pytestmark = pytest.mark.slow

@@ -15,9 +15,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline import geodesy, io, materials, simulate, windows
+from pipeline import io
+from pipeline.geometry import geodesy
+from pipeline.learning import materials, windows
+from pipeline.learning.scaling import WindowScaler
 from pipeline.params import Params, parse_params
-from pipeline.scaling import WindowScaler
+from pipeline.simulation import simulate
 from tests.project import run_pipeline, tiny_params_tree, write_params
 
 T0 = 1.78e9  # an instant in 2026, in Unix seconds

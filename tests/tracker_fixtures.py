@@ -22,16 +22,18 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pymap3d
 
-from pipeline import baselines, geodesy, io, materials, model_eval
-from pipeline.model_eval import output_scaler
-from pipeline.model_store import LoadedModel, load_model, save_model
+from pipeline import io
+from pipeline.filters.classical_filters import KINDS, FilterSettings
+from pipeline.geometry import geodesy
+from pipeline.learning import materials, model_eval
+from pipeline.learning.model_eval import output_scaler
+from pipeline.learning.model_store import LoadedModel, load_model, save_model
+from pipeline.learning.training import TrainingConfig, train
 from pipeline.params import Params, Radar, parse_params
-from pipeline.classical_filters import KINDS, FilterSettings
-from pipeline.plot_table import NO_SCENARIO, NO_TARGET, PLOT_INPUT_SCHEMA, RADAR_INPUT_SCHEMA, Plots
+from pipeline.recordings.plot_table import NO_SCENARIO, NO_TARGET, PLOT_INPUT_SCHEMA, RADAR_INPUT_SCHEMA, Plots
+from pipeline.stages.train_stage import network_config
+from pipeline.stages.tune_stage import start_settings
 from pipeline.tracker.models import Models
-from pipeline.tune_stage import start_settings
-from pipeline.train_stage import network_config
-from pipeline.training import TrainingConfig, train
 from tests.project import default_params_tree
 
 SCAN_S = 6.0
@@ -273,7 +275,7 @@ def plots_of(features: np.ndarray, plot_ids: np.ndarray, radar: Radar, target_id
     n = len(features)
     return Plots(np.asarray(plot_ids, dtype=np.int64), np.full(n, radar.radar_id, np.int32),
                  np.full(n, NO_SCENARIO, np.int32), features[:, 0], features[:, 1:4], features[:, 4],
-                 baselines.measurement_covariance(features[:, 1:4], radar),
+                 geodesy.measurement_covariance(features[:, 1:4], radar),
                  np.full(n, NO_TARGET, np.int32) if target_ids is None else np.asarray(target_ids, np.int32),
                  target_ids is not None, {radar.radar_id: radar})
 

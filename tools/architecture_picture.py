@@ -2,7 +2,7 @@
 
     python tools/architecture_picture.py [--out reports/architecture.png]
 
-Boxes are the modules a plot passes through (pipeline/plot_table.py and pipeline/tracker/), in
+Boxes are the modules a plot passes through (pipeline/recordings/plot_table.py and pipeline/tracker/), in
 the order the loop (pipeline/tracker/run.py) calls them; the picture is written atomically.
 """
 

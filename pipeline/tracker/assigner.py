@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from pipeline import io
-from pipeline.plot_table import NO_TARGET, Plots
+from pipeline.recordings.plot_table import NO_TARGET, Plots
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 

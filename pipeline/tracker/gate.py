@@ -40,7 +40,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from scipy.stats import chi2
 
-from pipeline.batch_filters import inverse3
+from pipeline.filters.batch_filters import inverse3
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 

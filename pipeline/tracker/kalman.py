@@ -1,5 +1,5 @@
-"""The classical estimator: a tuned CV, CA or IMM filter per track (`pipeline.classical_filters`),
-stepped by the one Kalman core (`pipeline.batch_filters`), an `Estimator`.
+"""The classical estimator: a tuned CV, CA or IMM filter per track (`pipeline.filters.classical_filters`),
+stepped by the one Kalman core (`pipeline.filters.batch_filters`), an `Estimator`.
 
 Every live track's filter sits in arrays by slot: each motion model's state x (S, M, n) and
 covariance P (S, M, n, n), the mode probabilities mu (S, M) and the time it is at (S,). What
@@ -8,7 +8,7 @@ predicted mode probabilities (`batch_filters.mixed`), a single filter's posterio
 filter is started at its first plot, with the velocity unknown up to the tuned spread, when
 the track is first predicted (clutter tracks, most of them, never are). The filters run in
 ECEF: with the same noise on every axis this is the same as a local east-north-up frame
-(`pipeline.motion_models`).
+(`pipeline.filters.motion_models`).
 
 `predict` moves the candidate tracks' filters to the plot's time in one batch (F and Q made
 once per distinct time step, plot times being quantised) and gives the combined position and
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import batch_filters, motion_models
-from pipeline.batch_filters import BatchState
-from pipeline.classical_filters import FilterSettings
+from pipeline.filters import batch_filters, motion_models
+from pipeline.filters.batch_filters import BatchState
+from pipeline.filters.classical_filters import FilterSettings
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 

@@ -1,7 +1,7 @@
-"""The network-scaled Kalman filter (`pipeline.kalman_net`, seed 003) as the tracker's estimator, an `Estimator`.
+"""The network-scaled Kalman filter (`pipeline.learning.kalman_net`, seed 003) as the tracker's estimator, an `Estimator`.
 
 Every live track runs the trained model's base filter (cv, ca or singer) in PyTorch
-(`pipeline.torch_filters`, float64, no gradients), with the network's recurrent memory kept
+(`pipeline.filters.torch_filters`, float64, no gradients), with the network's recurrent memory kept
 beside it; both sit in tensors by slot, as `pipeline.tracker.kalman.KalmanEstimator` keeps its
 filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
 network's `kalman_net.Memory` (hidden (S, H) and the increments' last values), and the scales the
@@ -35,9 +35,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline import motion_models, torch_filters
-from pipeline.kalman_net import KalmanNet, Memory
-from pipeline.torch_filters import State, Step, StepScales
+from pipeline.filters import motion_models, torch_filters
+from pipeline.filters.torch_filters import State, Step, StepScales
+from pipeline.learning.kalman_net import KalmanNet, Memory
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import ChiSquareGate, Scores
 from pipeline.tracker.tracks import LiveTracks

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline import classical_filters, io, materials
+from pipeline import io
+from pipeline.filters import classical_filters
+from pipeline.learning import materials
 from pipeline.params import Params
 from pipeline.tracker import registry
 from pipeline.tracker.models import Models
@@ -47,7 +49,7 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
     from_models_dir = {piece: _path(models_dir, piece, methods) for piece in sorted(registry.needs(methods))}
     networks = {}
     if any(piece in SCALER_OF_NETWORK for piece in from_models_dir):
-        from pipeline.model_store import load_model  # imports torch: only when a network is needed
+        from pipeline.learning.model_store import load_model  # imports torch: only when a network is needed
         expected = materials.scalers(params.windows)
         for kind, layout in SCALER_OF_NETWORK.items():
             if kind not in from_models_dir:
@@ -72,13 +74,13 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
                                     "`dvc repro tune_kalman`)")
     lstm_update = None
     if registry.LSTM_UPDATE in from_models_dir:
-        from pipeline import lstm_update as lstm_update_module  # imports torch: only when the method runs
+        from pipeline.learning import lstm_update as lstm_update_module  # imports torch: only when the method runs
         lstm_update = lstm_update_module.load(from_models_dir[registry.LSTM_UPDATE])
     kalman_net = None
     if registry.KALMAN_NET in from_models_dir:
         import torch
 
-        from pipeline import kalman_net as kalman_net_module  # imports torch: only when the method runs
+        from pipeline.learning import kalman_net as kalman_net_module  # imports torch: only when the method runs
         torch.set_num_threads(1)  # as for the networks (`Models`): the tracker steps a few tracks at a time
         kalman_net = kalman_net_module.load(from_models_dir[registry.KALMAN_NET])
     return Models(networks.get("predictor"), networks.get("filter"), networks.get("autoencoder"), filters,

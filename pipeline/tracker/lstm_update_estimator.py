@@ -1,4 +1,4 @@
-"""The LSTM update on a Kalman prediction (`pipeline.lstm_update`, issue 18) as the tracker's `Estimator`.
+"""The LSTM update on a Kalman prediction (`pipeline.learning.lstm_update`, issue 18) as the tracker's `Estimator`.
 
 Every live track keeps, by slot, its MC-dropout ensemble (N copies of the 9-state CA estimate and
 of the LSTM's memory, `lstm_update.Ensemble`; copy 0 the point estimate) and the time it is at.
@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from pipeline.lstm_update import Ensemble, LSTMUpdate
+from pipeline.learning.lstm_update import Ensemble, LSTMUpdate
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 

@@ -1,25 +1,25 @@
 """What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
 each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm), the
-LSTM-update estimator (`pipeline.lstm_update`) and the network-scaled filter (`pipeline.kalman_net`)."""
+LSTM-update estimator (`pipeline.learning.lstm_update`) and the network-scaled filter (`pipeline.learning.kalman_net`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Mapping
 
-from pipeline.classical_filters import FilterSettings
+from pipeline.filters.classical_filters import FilterSettings
 
 if TYPE_CHECKING:
-    from pipeline.inference import BatchNetwork
-    from pipeline.kalman_net import KalmanNet
-    from pipeline.lstm_update import LSTMUpdate
-    from pipeline.model_store import LoadedModel
+    from pipeline.learning.inference import BatchNetwork
+    from pipeline.learning.kalman_net import KalmanNet
+    from pipeline.learning.lstm_update import LSTMUpdate
+    from pipeline.learning.model_store import LoadedModel
 
 
 @dataclass
 class Models:
     """Each piece is None (the networks) or empty (the filters) when no method of the run needs it.
-    `runnable` holds each loaded network as a batch function (`pipeline.inference`, on `backend`)."""
+    `runnable` holds each loaded network as a batch function (`pipeline.learning.inference`, on `backend`)."""
 
     predictor: LoadedModel | None = None
     filter: LoadedModel | None = None
@@ -39,6 +39,6 @@ class Models:
 
             torch.set_num_threads(1)  # the tracker's batches are a few windows: threads only add contention
         if loaded:
-            from pipeline.inference import BatchNetwork  # imports torch: only when a network is loaded
+            from pipeline.learning.inference import BatchNetwork  # imports torch: only when a network is loaded
             self.runnable = {kind: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
                                                 self.backend) for kind, model in loaded.items()}

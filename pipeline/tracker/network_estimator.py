@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.model_eval import output_scaler
+from pipeline.learning.model_eval import output_scaler
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.models import Models
 from pipeline.tracker.tracks import LiveTracks

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import geodesy
-from pipeline.inference import BatchNetwork
-from pipeline.model_store import LoadedModel
+from pipeline.geometry import geodesy
+from pipeline.learning.inference import BatchNetwork
+from pipeline.learning.model_store import LoadedModel
 from pipeline.params import TrackerParams
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import Scores, within

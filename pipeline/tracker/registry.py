@@ -30,9 +30,9 @@ if TYPE_CHECKING:
     from pipeline.tracker.assigner import Assigner
     from pipeline.tracker.estimator import Estimator
     from pipeline.tracker.gate import Gate
+    from pipeline.tracker.management import TrackManagement
     from pipeline.tracker.models import Models
     from pipeline.tracker.network_estimator import NetworkEstimator
-    from pipeline.tracker.management import TrackManagement
     from pipeline.tracker.run import Composition
 
 NEURAL, CLASSICAL, REFERENCE = "neural", "classical", "reference"

@@ -37,8 +37,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from pipeline import plot_table
-from pipeline.plot_table import Plots
+from pipeline.recordings import plot_table
+from pipeline.recordings.plot_table import Plots
 from pipeline.tracker.assigner import Assigner, Candidates
 from pipeline.tracker.estimator import Estimator, Prediction
 from pipeline.tracker.gate import Gate

@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline import plot_table
-from pipeline.plot_table import Plots
+from pipeline.recordings import plot_table
+from pipeline.recordings.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
 
 TIME_QUANTUM_S = 1.0 / 128.0  # ASTERIX CAT048 I048/140 time-of-day resolution (EUROCONTROL CAT048 ed. 1.32)

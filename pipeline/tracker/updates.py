@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.plot_table import Plots
+from pipeline.recordings.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
 
 START = "start"

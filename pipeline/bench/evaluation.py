@@ -1,0 +1,282 @@
+"""Evaluate trackers over scenarios: one unit per (run, scenario), spread over processes.
+
+Each scenario is one radar recording tracked on its own, as in the thesis. The MIA
+sampling draws from a stream seeded by (tracker seed, scenario), so results do not depend
+on the order scenarios are run in.
+
+Besides the thesis's metrics every run gets OSPA (`pipeline.bench.ospa`), GOSPA with its parts, track
+switches, tracks per truth and track purity (`pipeline.bench.gospa`, on OSPA's sets of each scan), ANEES
+where the tracker gives covariances, and its speed in plots per second (tracking time only, one core). Two
+references bound the problem: `plots`, the target's raw plots taken as the estimate with the
+true association, and `oracle`, the tuned IMM given the true association.
+
+The units are all independent, spread over `compute.workers` processes (1: all in this one).
+Units are handed out largest first so no worker is left with a long one at the end, and their
+results are put together by run and scenario, never in the order they finish: the metrics are
+the same byte for byte whatever the number of workers, except the speeds, which are timings.
+The stages `evaluate` (the evaluated split at the radar's site) and `evaluate_sites` (the same
+routes at other sites) both run their scenarios through here.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import io
+from pipeline.bench import gospa, ospa, unit_pool
+from pipeline.bench.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
+from pipeline.params import EvaluationRun, Params
+from pipeline.progress import progress_logger
+from pipeline.recordings import plot_table
+from pipeline.recordings.plot_table import NO_TARGET, Plots
+from pipeline.simulation import routes, simulate
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import track
+from pipeline.tracker.updates import COLUMNS
+
+log = logging.getLogger("pipeline")
+
+PLOTS_REFERENCE = "plots"     # the target's raw plots with the true association (not a tracker)
+PLOTS_REFERENCE_COST = 0.03   # its relative cost (see registry.Method.relative_cost)
+SPEED = "plots_per_second"    # the one metric that is a timing, not a result
+
+
+@dataclass
+class Scenario:
+    scenario_id: int
+    plots: Plots                  # the scenario's plots, time order
+    is_target: dict[int, bool]    # plot id -> whether the plot is the target's
+    truth: object                 # t -> ECEF positions (a spline over the route)
+    scans: np.ndarray             # each plot's antenna scan
+    coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
+    strategy: str                 # the route's strategy (routes.STRATEGIES), for metrics by kind of flight
+
+
+def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
+                   ) -> list[Scenario]:
+    """The scenarios of a split: its plots (`plot_table`), each plot's scan by plot id, its routes and truth."""
+    scenarios = []
+    route_ids = route_table.column("route_id").to_numpy()
+    truth_scenarios = truth_table.column("scenario_id").to_numpy()
+    truth_scans = truth_table.column("scan").to_numpy()
+    in_coverage = truth_table.column("in_coverage").to_numpy(zero_copy_only=False)
+    for scenario_id, part in plots.scenarios():
+        route = route_table.filter(pa.array(route_ids == scenario_id))
+        trajectory = simulate.trajectory_of({name: route.column(name).to_numpy() for name in simulate.ROUTE_COLUMNS})
+        scenarios.append(Scenario(scenario_id, part, dict(zip(part.plot_id.tolist(),
+                                                                (part.target_id != NO_TARGET).tolist())),
+                                  _clipped(trajectory), np.array([plot_scans[p] for p in part.plot_id.tolist()]),
+                                  np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage]),
+                                  str(route.column("strategy")[0].as_py())))
+    return scenarios
+
+
+def read_scenarios(params: Params, simulated_dir: Path, routes_dir: Path) -> list[Scenario]:
+    """The evaluated split's scenarios, from the simulate and routes stages' files."""
+    split = params.evaluate.split
+    plots_path = simulated_dir / split / "plots.parquet"
+    table = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)  # the simulated schema: scans, truth
+    plots = plot_table.read_parquet_plots(plots_path, simulated_dir / split / "radar.parquet", params.radar)
+    return load_scenarios(plots, dict(zip(table.column("plot_id").to_numpy().tolist(),
+                                          table.column("scan").to_numpy().tolist())),
+                          io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA),
+                          io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
+
+
+def _clipped(trajectory: object) -> object:
+    """The route's position at any time, held at its ends outside it."""
+    start, end = trajectory.x[0], trajectory.x[-1]
+    return lambda t: trajectory(np.clip(t, start, end))
+
+
+def reference_updates(scenario: Scenario, method: str, models: Models, params: Params) -> dict[str, np.ndarray]:
+    """The references' updates, from the target's plots only: `plots` takes each plot as the
+    estimate of one always-confirmed track; a registered reference (the oracle) runs its tracker on them."""
+    target = scenario.plots.take(scenario.plots.target_id != NO_TARGET)
+    if method != PLOTS_REFERENCE:
+        return track(target, registry.compose(method, models, params.tracker, 0.0, params.tracker.seed))
+    count = len(target)
+    values = {"track_id": np.zeros(count, np.int64), "time_unix_s": target.time, "plot_id": target.plot_id,
+              "radar_id": target.radar_id, "x_ecef_m": target.position[:, 0], "y_ecef_m": target.position[:, 1],
+              "z_ecef_m": target.position[:, 2], "weight": np.full(count, params.tracker.weight_confirmed),
+              "association": np.array(["truth"] * count), "association_error": np.zeros(count),
+              "position_covariance": target.covariance}
+    return {name: values[name] for name in COLUMNS}
+
+
+def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
+    """Every run of params, and the references, as name -> track(scenario)."""
+    def method_run(run: EvaluationRun) -> callable:
+        return lambda scenario: track(scenario.plots, registry.compose(
+            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id],
+            run.management))
+
+    def reference_run(method: str) -> callable:
+        return lambda scenario: reference_updates(scenario, method, models, params)
+
+    return {**{run.name: method_run(run) for run in params.evaluate.runs},
+            **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
+
+
+def run_management(params: Params) -> dict[str, TrackManagement]:
+    """The track management rule each run (and reference) is tracked and scored under, by name."""
+    default = registry.management(params.tracker.management, params.tracker)
+    return {**{run.name: registry.management(run.management or params.tracker.management, params.tracker)
+               for run in params.evaluate.runs},
+            **{f"{method}_reference": default for method in params.evaluate.references}}
+
+
+@dataclass
+class UnitResult:
+    """What tracking one scenario with one run contributes to the run's metrics."""
+
+    counts: RouteCounts
+    scan_ospa: np.ndarray                  # OSPA (m) of each scan of the scenario
+    scan_gospa: np.ndarray                 # (S, 3) m: each scan's GOSPA in its localisation, missed and false shares
+    track_switches: int                    # of the target (`pipeline.bench.gospa.track_switches`)
+    tracks_per_truth: np.ndarray           # (1,) when the target is in coverage at some scan, else (0,)
+    track_purity: np.ndarray               # of each confirmed track ever assigned to the target
+    nees: np.ndarray                       # NEES of each confirmed target update (NaN without covariances)
+    seconds: float                         # tracking time alone
+    updates: dict[str, np.ndarray] | None  # the updates, kept only where a picture needs them
+
+
+@dataclass
+class Evaluation:
+    """What every unit reads: the params, the test scenarios, and each run as name -> track(scenario);
+    and the folders they come from (simulated data, routes, models), for worker processes to load
+    their own copy."""
+
+    params: Params
+    folders: tuple[Path, Path, Path]
+    scenarios: list[Scenario]
+    runs: dict[str, Callable[[Scenario], dict[str, np.ndarray]]]
+
+
+def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
+    """The scenarios of the evaluated split and every run, with what the runs need loaded (and
+    checked against params)."""
+    models = load_models(models_dir, params, [run.method for run in params.evaluate.runs]
+                         + [name for name in params.evaluate.references if name in registry.REFERENCES])
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), read_scenarios(params, simulated_dir, routes_dir),
+                      tracker_runs(params, models))
+
+
+def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
+    """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
+    params, scenario = evaluation.params, evaluation.scenarios[index]
+    management = run_management(params)[name]
+    start = time.perf_counter()
+    updates = evaluation.runs[name](scenario)
+    seconds = time.perf_counter() - start
+    scan_of_plot = dict(zip(scenario.plots.plot_id.tolist(), scenario.scans.tolist()))
+    update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
+    scans = np.unique(scenario.scans)
+    scan_ospa = ospa.scan_ospa(updates, update_scans, management, scenario.coverage_scans, scans, scenario.truth,
+                               params.evaluate.ospa_cutoff_m, params.evaluate.ospa_order)
+    scored = target_gospa(scenario, ospa.scan_estimates(updates, update_scans, management), scans,
+                          params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+    truths = np.zeros(int(np.isin(scans, scenario.coverage_scans).any()), dtype=np.int64)
+    pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
+    return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
+                      gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
+                      int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
+                      gospa.tracks_per_truth(scored.truth, scored.track, truths),
+                      gospa.track_purity(scored.truth, scored.track),
+                      confirmed_nees(updates, scenario.is_target, scenario.truth, management), seconds,
+                      updates if pictured else None)
+
+
+def target_gospa(scenario: Scenario, estimates: ospa.ScanEstimates, scans: np.ndarray, cutoff: float, order: float
+                 ) -> gospa.ScanGospa:
+    """GOSPA at each of `scans` of a single-target scenario, on OSPA's sets (`pipeline.bench.ospa`): the
+    target (truth id 0) where it is in coverage, each confirmed track's last estimate in the scan,
+    each compared with the true position at its own time."""
+    errors = np.linalg.norm(estimates.position - scenario.truth(estimates.time), axis=1) if len(estimates.time) \
+        else np.empty(0)
+    present = scans[np.isin(scans, scenario.coverage_scans)]
+    return gospa.scan_gospa(scans, present, np.zeros(len(present), dtype=np.int64), estimates.scan, estimates.track,
+                            lambda truths, tracks: np.broadcast_to(errors[tracks], (len(truths), len(tracks))),
+                            cutoff, order, keep_pairs=True)  # switches counted as for the scenes
+
+
+def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
+    """A run's metrics from its units in scenario order; `plots` is the number of plots of all
+    scenarios, and the speed counts the tracking time alone, summed over the units. GOSPA and its
+    parts (m) are means over all scans, the parts each scan's shares (`pipeline.bench.gospa`), so they add
+    up to GOSPA; track switches are summed over the routes, tracks per truth averaged over the
+    routes whose target was in coverage, purity over the confirmed tracks ever assigned to a target."""
+    nees = np.concatenate([r.nees for r in results])
+    per_scan = np.concatenate([r.scan_ospa for r in results])
+    shares = np.concatenate([r.scan_gospa for r in results])
+    per_truth = np.concatenate([r.tracks_per_truth for r in results])
+    purity = np.concatenate([r.track_purity for r in results])
+    seconds = sum(r.seconds for r in results)
+    return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
+            "OSPA_p90": float(np.percentile(per_scan, 90)), "GOSPA": float(shares.sum(axis=1).mean()),
+            **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
+            "track_switches": sum(r.track_switches for r in results),
+            "tracks_per_truth": float(per_truth.mean()) if len(per_truth) else float("nan"),
+            "track_purity": float(purity.mean()) if len(purity) else float("nan"),
+            "ANEES": float(nees.mean()) if len(nees) and np.isfinite(nees).all() else float("nan"),
+            SPEED: plots / seconds if seconds else float("nan")}
+
+
+def relative_cost(name: str, scenario: Scenario) -> float:
+    """Rough tracking time of one unit (run `name`, one scenario), to hand out the largest first."""
+    method = registry.method_of_run(name)
+    return (PLOTS_REFERENCE_COST if method is None else method.relative_cost) * len(scenario.plots)
+
+
+def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) -> dict[str, dict[str, float]]:
+    """A run's metrics (without its speed) over the scenarios of each route strategy, by strategy
+    in the order of routes.STRATEGIES: how it fares on straight legs, short turns, long turns and
+    climbs, apart."""
+    by_strategy = {}
+    for strategy in routes.STRATEGIES:
+        chosen = [i for i, scenario in enumerate(scenarios) if scenario.strategy == strategy]
+        if chosen:
+            values = run_metrics([ordered[i] for i in chosen], sum(len(scenarios[i].plots) for i in chosen))
+            by_strategy[strategy] = {key: value for key, value in values.items() if key != SPEED}
+    return by_strategy
+
+
+def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
+                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict], dict[str, dict]]:
+    """Every run over every scenario, in `workers` processes: each run's metrics, the OSPA of
+    every scan (scenarios in order), the example run's updates of the pictured scenarios by
+    scenario id, and each run's metrics by route strategy (`metrics_by_strategy`). Each run's
+    metrics are logged, after `label`, as soon as its last unit is in."""
+    scenarios = evaluation.scenarios
+    plots = sum(len(s.plots) for s in scenarios)
+    units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
+                   key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
+    workers = max(1, min(workers, len(units)))
+    parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
+    results, per_scan, examples, by_strategy = {}, {}, {}, {}
+    report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
+    for done, ((name, index), result) in enumerate(unit_pool.completed_units(
+            units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
+        parts[name][index] = result
+        report(done, len(units))
+        if len(parts[name]) == len(scenarios):
+            finished = parts.pop(name)
+            ordered = [finished[i] for i in range(len(scenarios))]
+            results[name] = run_metrics(ordered, plots)
+            by_strategy[name] = metrics_by_strategy(scenarios, ordered)
+            per_scan[name] = np.concatenate([r.scan_ospa for r in ordered])
+            examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
+                             if r.updates is not None})
+            log.info("%s %s: %s", label, name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
+    return ({name: results[name] for name in evaluation.runs}, {name: per_scan[name] for name in evaluation.runs},
+            examples, {name: by_strategy[name] for name in evaluation.runs})

@@ -1,0 +1,227 @@
+"""Evaluate trackers on the multi-target scenes (`pipeline.simulation.scenes`): one unit per (run, scene),
+spread over processes as `pipeline.bench.evaluation` spreads its (run, scenario) units.
+
+Each scene is one radar recording tracked whole: all its aircraft and its clutter at once. The
+runs are those of `evaluate.scene_runs` (`Evaluate.runs_on_scenes`) and the registered
+references of `evaluate.references` (the oracle, the tuned IMM given each plot's aircraft; the
+`plots` reference is one track per scenario, a single-target idea, and is left out).
+
+Scoring, per scan of a scene (`pipeline.bench.gospa`, on OSPA's estimate sets, `ospa.scan_estimates`):
+the truths are the aircraft the simulator had in radar coverage at that scan; the estimates are
+the confirmed tracks updated in the scan, each at its last update there, compared with every
+truth's position at that update's time. Per run, over all scans of all scenes:
+
+- GOSPA (alpha = 2, cutoff and order `evaluate.gospa_cutoff_m`, `gospa_order`) and its
+  localisation, missed and false parts, in metres, each scan's GOSPA split in proportion to its
+  parts (`gospa.shares_in_metres`), so the three add up to GOSPA; means over the scans;
+- track switches, summed over the aircraft of all scenes (`gospa.track_switches`), on the kept
+  pairs (`gospa.kept_pairs`: an aircraft keeps its track while that stays within the cutoff, so
+  two aircraft crossing within the estimates' errors cost no switch unless a track changes
+  aircraft); tracks per truth, fragmentation and purity read the same pairs;
+- tracks per truth, the distinct confirmed tracks ever assigned to an aircraft in coverage at
+  some scan, averaged over those aircraft; and fragmentation, the tracks assigned beyond the
+  first, max(tracks per truth - 1, 0), averaged over the same aircraft: the extra pieces an
+  aircraft's track falls into (0 for one track all along, and for an aircraft never tracked,
+  which the missed part counts);
+- track purity, per confirmed track ever assigned, averaged over those tracks;
+- speed, the scenes' plots over the tracking time alone (one core).
+
+Results are put together by run and scene, never in the order the units finish: the metrics but
+the speeds are the same whatever the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import io
+from pipeline.bench import evaluation, gospa, ospa, unit_pool
+from pipeline.params import Params
+from pipeline.progress import progress_logger
+from pipeline.recordings import plot_table
+from pipeline.recordings.plot_table import Plots
+from pipeline.simulation import scenes, simulate
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.management import TrackManagement
+
+log = logging.getLogger("pipeline")
+
+SPEED = evaluation.SPEED
+
+
+@dataclass
+class Scene:
+    """One scene as the trackers and the scoring see it. `scenario_id` is the scene's id (the plots'
+    scenario_id), named as a single-target scenario's so the runs of `evaluation.tracker_runs`
+    (which seed MIA by it) track a scene as they track a scenario."""
+
+    scenario_id: int
+    plots: Plots                   # the scene's plots, time order
+    scans: np.ndarray              # (P,) each plot's antenna scan
+    all_scans: np.ndarray          # (S,) every scan of the scene, sorted
+    truth_scan: np.ndarray         # (N,) the scan of each (aircraft, scan) in coverage, sorted by scan
+    truth_id: np.ndarray           # (N,) its aircraft's id
+    trajectories: dict[int, Callable[[np.ndarray], np.ndarray]]  # aircraft id -> t (s) -> (len(t), 3) m ECEF
+    roles: dict[int, str]          # aircraft id -> its role in the scene (scenes.CROSSING ... or a strategy)
+
+
+def _clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
+    """The aircraft's true ECEF position at any time, held at its route's ends outside it."""
+    trajectory = simulate.trajectory_of(route)
+    start, end = trajectory.x[0], trajectory.x[-1]
+    return lambda t: trajectory(np.clip(t, start, end))
+
+
+def read_scenes(params: Params, scenes_dir: Path) -> list[Scene]:
+    """The scenes the `scenes` stage wrote to `scenes_dir` (routes, plots, truth, radar)."""
+    table = io.read_parquet(scenes_dir / "plots.parquet", simulate.PLOT_SCHEMA)
+    plots = plot_table.read_parquet_plots(scenes_dir / "plots.parquet", scenes_dir / "radar.parquet", params.radar)
+    scan_of_plot = dict(zip(table.column("plot_id").to_numpy().tolist(), table.column("scan").to_numpy().tolist()))
+    route_table = io.read_parquet(scenes_dir / "routes.parquet", scenes.SCENE_ROUTE_SCHEMA)
+    truth = io.read_parquet(scenes_dir / "truth.parquet", simulate.TRUTH_SCHEMA)
+    truth_scene = truth.column("scenario_id").to_numpy()
+    truth_scan, truth_id = truth.column("scan").to_numpy(), truth.column("target_id").to_numpy()
+    in_coverage = truth.column("in_coverage").to_numpy(zero_copy_only=False)
+    route_scene = route_table.column("scene_id").to_numpy()
+    loaded = []
+    for scene_id, part in plots.scenarios():
+        aircraft = simulate.routes_by_id(route_table.filter(pa.array(route_scene == scene_id)))
+        roles = route_table.filter(pa.array(route_scene == scene_id)).select(["route_id", "strategy"]).to_pydict()
+        mine = (truth_scene == scene_id) & in_coverage
+        order = np.lexsort((truth_id[mine], truth_scan[mine]))
+        scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
+        loaded.append(Scene(scene_id, part, scans, np.unique(np.concatenate([scans, truth_scan[mine]])),
+                            truth_scan[mine][order], truth_id[mine][order],
+                            {int(route["route_id"][0]): _clipped(route) for route in aircraft},
+                            dict(zip(roles["route_id"], roles["strategy"]))))
+    return loaded
+
+
+def scene_params(params: Params) -> Params:
+    """Params whose evaluation runs are the scenes' (`evaluate.scene_runs`) and whose references are
+    the registered ones (the oracle)."""
+    chosen = params.evaluate
+    return dataclasses.replace(params, evaluate=dataclasses.replace(
+        chosen, runs=chosen.runs_on_scenes(),
+        references=tuple(name for name in chosen.references if name in registry.REFERENCES)))
+
+
+@dataclass
+class SceneEvaluation:
+    """What every unit reads: params (`scene_params`'), the scenes, each run as name -> track(scene)
+    and its track management rule; and the folders (scenes, models) for worker processes to load
+    their own copy."""
+
+    params: Params
+    folders: tuple[Path, Path]
+    scenes: list[Scene]
+    runs: dict[str, Callable[[Scene], dict[str, np.ndarray]]]
+    management: dict[str, TrackManagement]
+
+
+def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluation:
+    """The scenes and every run scored on them, with what the runs need loaded."""
+    chosen = scene_params(params)
+    models = load_models(models_dir, chosen, [run.method for run in chosen.evaluate.runs]
+                         + list(chosen.evaluate.references))
+    return SceneEvaluation(chosen, (scenes_dir, models_dir), read_scenes(chosen, scenes_dir),
+                           evaluation.tracker_runs(chosen, models), evaluation.run_management(chosen))
+
+
+def scene_gospa(scene: Scene, estimates: ospa.ScanEstimates, cutoff: float, order: float) -> gospa.ScanGospa:
+    """GOSPA at every scan of a scene: the aircraft in coverage against the confirmed tracks'
+    estimates, each estimate compared with each aircraft's position at the estimate's time; the
+    identity metrics read the kept pairs (`pipeline.bench.gospa`), so two aircraft passing within the
+    estimates' errors of each other cost no switch while each keeps its track."""
+    def distances(truth_rows: np.ndarray, track_rows: np.ndarray) -> np.ndarray:
+        times, estimated = estimates.time[track_rows], estimates.position[track_rows]
+        return np.stack([np.linalg.norm(estimated - scene.trajectories[int(aircraft)](times), axis=1)
+                         for aircraft in scene.truth_id[truth_rows]])
+
+    return gospa.scan_gospa(scene.all_scans, scene.truth_scan, scene.truth_id, estimates.scan, estimates.track,
+                            distances, cutoff, order, keep_pairs=True)
+
+
+@dataclass
+class SceneResult:
+    """What tracking one scene with one run contributes to the run's metrics."""
+
+    scan_gospa: np.ndarray         # (S, 3) m: each scan's GOSPA in its localisation, missed and false shares
+    track_switches: int            # summed over the scene's aircraft
+    tracks_per_truth: np.ndarray   # (A,) of each aircraft in coverage at some scan
+    track_purity: np.ndarray       # of each confirmed track ever assigned to an aircraft
+    seconds: float                 # tracking time alone
+    pictured: tuple[dict[str, np.ndarray], gospa.ScanGospa] | None  # updates and assignment, for the picture
+
+
+def evaluate_unit(evaluation: SceneEvaluation, name: str, index: int, pictured: bool = False) -> SceneResult:
+    """Track scene `index` (position in `evaluation.scenes`) with run `name`, and score it; keep the
+    updates and the assignment when the scene is `pictured`."""
+    params, scene = evaluation.params, evaluation.scenes[index]
+    management = evaluation.management[name]
+    start = time.perf_counter()
+    updates = evaluation.runs[name](scene)
+    seconds = time.perf_counter() - start
+    scan_of_plot = dict(zip(scene.plots.plot_id.tolist(), scene.scans.tolist()))
+    update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
+    scored = scene_gospa(scene, ospa.scan_estimates(updates, update_scans, management),
+                         params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+    truths = np.unique(scene.truth_id)
+    return SceneResult(gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
+                       int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
+                       gospa.tracks_per_truth(scored.truth, scored.track, truths),
+                       gospa.track_purity(scored.truth, scored.track), seconds,
+                       (updates, scored) if pictured else None)
+
+
+def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
+    """A run's metrics from its units (see the module docstring); `plots` is the scenes' plots."""
+    shares = np.concatenate([r.scan_gospa for r in results])
+    per_truth = np.concatenate([r.tracks_per_truth for r in results])
+    purity = np.concatenate([r.track_purity for r in results])
+    seconds = sum(r.seconds for r in results)
+    return {"GOSPA": float(shares.sum(axis=1).mean()),
+            **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
+            "track_switches": sum(r.track_switches for r in results),
+            "tracks_per_truth": float(per_truth.mean()) if len(per_truth) else float("nan"),
+            "fragmentation": float(np.maximum(per_truth - 1, 0).mean()) if len(per_truth) else float("nan"),
+            "track_purity": float(purity.mean()) if len(purity) else float("nan"),
+            SPEED: plots / seconds if seconds else float("nan")}
+
+
+def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[str, int]
+                 ) -> tuple[dict[str, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
+    """Every run over every scene in `workers` processes: each run's metrics (logged as soon as its
+    last unit is in), and the updates and assignment of the `example` unit (run name, scene index)."""
+    tracked = evaluation.scenes
+    plots = sum(len(scene.plots) for scene in tracked)
+
+    def cost(unit: tuple[str, int, bool]) -> float:
+        method = registry.method_of_run(unit[0])
+        return -method.relative_cost * len(tracked[unit[1]].plots)
+
+    units = sorted(((name, index, (name, index) == example) for name in evaluation.runs
+                    for index in range(len(tracked))), key=cost)
+    workers = max(1, min(workers, len(units)))
+    parts: dict[str, dict[int, SceneResult]] = {name: {} for name in evaluation.runs}
+    results, pictured = {}, None
+    report = progress_logger(f"evaluate_scenes ({workers} worker{'s' if workers > 1 else ''})")
+    for done, ((name, index, _), result) in enumerate(unit_pool.completed_units(
+            units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
+        parts[name][index] = result
+        pictured = result.pictured or pictured
+        report(done, len(units))
+        if len(parts[name]) == len(tracked):
+            finished = parts.pop(name)
+            results[name] = run_metrics([finished[i] for i in range(len(tracked))], plots)
+            log.info("evaluate_scenes %s: %s", name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
+    return {name: results[name] for name in evaluation.runs}, pictured

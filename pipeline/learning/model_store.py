@@ -1,0 +1,141 @@
+"""Trained models on disk: one file per network with its weights, config, scaler and extras.
+
+`load_model(path)` is the one way to get a usable network back. It refuses a file whose
+weights do not fit the architecture recorded with them, and the tracker compares the
+recorded scaler with the windows' scaler so a model is never fed differently scaled data.
+The file holds only tensors and plain values, so it loads with `weights_only=True`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from io import BytesIO
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+from torch import nn
+
+from pipeline import io
+from pipeline.learning.networks import NetworkConfig, build_network
+from pipeline.learning.scaling import WindowScaler
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class LoadedModel:
+    network: nn.Module
+    config: NetworkConfig
+    scaler: WindowScaler
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @torch.no_grad()
+    def predict(self, scaled_windows: torch.Tensor) -> torch.Tensor:
+        return self.network(scaled_windows)
+
+
+def first_non_finite(tensors: Mapping[str, Any]) -> str | None:
+    """The name of the first floating-point tensor of `tensors` (a state dict) holding a NaN or an infinity,
+    None when every one is finite (other values are skipped). One check over all of them, then the search."""
+    floating = {name: value for name, value in tensors.items()
+                if isinstance(value, torch.Tensor) and value.is_floating_point()}
+    if not floating or bool(torch.stack([torch.isfinite(value).all() for value in floating.values()]).all()):
+        return None
+    return next(name for name, value in floating.items() if not bool(torch.isfinite(value).all()))
+
+
+def _finite_weights(path: Path, state_dict: Mapping[str, Any], stage: str) -> None:
+    """InputError naming the file and the tensor when a saved network's weights are not all finite: a training
+    that diverged (before its stage refused to save one), or a damaged file; the network would give NaN."""
+    tensor = first_non_finite(state_dict)
+    if tensor is not None:
+        values = state_dict[tensor]
+        bad = int((~torch.isfinite(values)).sum())
+        raise io.InputError(f"{path}: weight tensor '{tensor}' has {bad} non-finite values (NaN or infinite) of "
+                            f"{values.numel()}: its training diverged; train it again (`dvc repro {stage}`, "
+                            "with a lower learning rate)")
+
+
+def write_bundle(bundle: dict[str, Any], path: str | Path) -> None:
+    """Write a dict of tensors and plain values atomically; the same values give the same bytes.
+
+    torch.save names the records of its zip archive after the file it writes to, so saving to
+    the temporary file made the bytes differ from run to run; the bundle is serialised in
+    memory (archive name `bundle`) and written as bytes."""
+    buffer = BytesIO()
+    torch.save(bundle, buffer)
+    io.write_bytes(buffer.getvalue(), path)
+
+
+def read_bundle(path: str | Path) -> dict[str, Any]:
+    """A dict written by `write_bundle` (tensors and plain values only: `weights_only`); InputError naming the
+    file when it is missing or not such a file."""
+    path = Path(path)
+    if not path.is_file():
+        raise io.InputError(f"{path}: model file not found (run `dvc repro` to train it)")
+    try:
+        bundle = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for a corrupt or foreign file
+        raise io.InputError(f"{path}: not a readable model file ({type(error).__name__}: {error})") from None
+    if not isinstance(bundle, dict):
+        raise io.InputError(f"{path}: not a model bundle")
+    return bundle
+
+
+def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module], stage: str) -> nn.Module:
+    """A network saved as {"config", "state_dict"} with `write_bundle` (the network-scaled filter, the LSTM
+    update, the association network), built by `build(config)`, given its weights, in eval mode.
+
+    InputError naming the file and the `dvc repro` stage that makes it when the file is missing or unreadable,
+    or its config or weights do not fit `build`'s network (another network's file, or one saved by another
+    version of the code): torch and the configs raise TypeError, ValueError, KeyError or RuntimeError; and
+    naming the tensor when a weight is not finite."""
+    path = Path(path)
+    bundle = read_bundle(path)
+    if not isinstance(bundle.get("config"), dict) or "state_dict" not in bundle:
+        raise io.InputError(f"{path}: not a saved network (no config and weights); make it again with "
+                            f"`dvc repro {stage}`")
+    try:
+        network = build(bundle["config"])
+        network.load_state_dict(bundle["state_dict"])
+    except (TypeError, ValueError, KeyError, RuntimeError) as error:
+        raise io.InputError(f"{path}: its config or weights do not fit the network `dvc repro {stage}` makes "
+                            f"(another network's file, or an older one?): {type(error).__name__}: "
+                            f"{str(error).splitlines()[0] if str(error) else ''}") from None
+    _finite_weights(path, bundle["state_dict"], stage)
+    return network.eval()
+
+
+def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,
+               extras: dict[str, Any] | None = None) -> None:
+    """Write the bundle atomically (`write_bundle`); the same weights give the same bytes."""
+    write_bundle({
+        "format_version": FORMAT_VERSION,
+        "config": config.to_dict(),
+        "scaler": scaler.to_dict(),
+        "extras": extras or {},
+        "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()},
+    }, path)
+
+
+def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:
+    """Load a bundle written by `save_model`; InputError naming the file and what is wrong: missing or
+    unreadable, another kind, weights that do not fit the architecture or are not all finite."""
+    path = Path(path)
+    bundle = read_bundle(path)
+    if bundle.get("format_version") != FORMAT_VERSION:
+        raise io.InputError(f"{path}: not a model bundle of format {FORMAT_VERSION}")
+    config = NetworkConfig.from_dict(bundle["config"])
+    if expected_kind is not None and config.kind != expected_kind:
+        raise io.InputError(f"{path}: holds a {config.kind} network, expected a {expected_kind}")
+    network = build_network(config)
+    try:
+        network.load_state_dict(bundle["state_dict"])
+    except RuntimeError as error:
+        raise io.InputError(f"{path}: weights do not fit the {config.kind} architecture recorded in the file "
+                            f"({str(error).splitlines()[0]})") from None
+    _finite_weights(path, bundle["state_dict"], f"train_{config.kind}")
+    network.eval()
+    return LoadedModel(network, config, WindowScaler.from_dict(bundle["scaler"]), dict(bundle["extras"]))

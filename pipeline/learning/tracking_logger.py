@@ -1,0 +1,62 @@
+"""Lightning's MLflow logger for a training stage whose tracking store may go away mid-run.
+
+Every write is retried (`experiment_tracking.write_to_store`); when one still fails, a warning names
+the store and the run's later writes are skipped, so that the training, and the writing of its model
+and reports, go on; the stage then raises the failure (`raise_if_failed`, through
+`experiment_tracking.ended_run`): exit 2 naming the URI and the outputs written, never a traceback
+after an hour of training with nothing kept. Lightning ends the logger's run "failed" when training
+raises (`TrainingDiverged`, Ctrl-C): that write, too, is warned about only, and the error goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lightning.pytorch.loggers import MLFlowLogger
+
+from pipeline.learning.experiment_tracking import TrackingError, write_to_store
+
+log = logging.getLogger("pipeline")
+
+
+class TrainingLogger(MLFlowLogger):
+    """MLFlowLogger (`keywords`: its arguments) for the store at `uri` (module docstring)."""
+
+    def __init__(self, uri: str, **keywords: Any) -> None:
+        super().__init__(tracking_uri=uri, **keywords)
+        self.uri = uri
+        self.failure: TrackingError | None = None
+
+    def write(self, what: str, call: Callable[..., Any], *arguments: Any, **keywords: Any) -> Any:
+        """`write_to_store(uri, what, call, ...)`, skipped (None) after a failed write; a failure is kept and
+        warned about (None)."""
+        if self.failure is not None:
+            return None
+        try:
+            return write_to_store(self.uri, what, call, *arguments, **keywords)
+        except TrackingError as error:
+            self.failure = error
+            log.warning("%s; the stage goes on without MLflow and fails at its end", error)
+            return None
+
+    def log_metrics(self, metrics: dict[str, float], step: int | None = None) -> None:
+        self.write("logging metrics", super().log_metrics, metrics, step)
+
+    def log_hyperparams(self, params: dict[str, Any]) -> None:  # type: ignore[override]
+        self.write("logging params", super().log_hyperparams, params)
+
+    def log_artifact(self, path: Path) -> None:
+        """Log the file `path` as an artifact of the run."""
+        self.write(f"logging {path}", self.experiment.log_artifact, self.run_id, str(path))
+
+    def finalize(self, status: str = "success") -> None:
+        self.write(f"ending the run ({status})", super().finalize, status)
+
+    def raise_if_failed(self, written: str) -> None:
+        """TrackingError if a write failed, saying that the stage's outputs (`written`) are written."""
+        if self.failure is not None:
+            raise TrackingError(f"{self.failure}; {written} written, its MLflow run incomplete: run the stage "
+                                "again once the store is back")

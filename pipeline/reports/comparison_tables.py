@@ -1,0 +1,309 @@
+"""The comparison's tables and sentences in Markdown, from the numbers `compare` gathers
+(`reports/comparison.json`): the tracker table, continuity, GOSPA, the scenes, the sites, the
+hold-out and tuning tables, and the plain-sentence verdict. The `compare` stage writes them to
+`reports/comparison.md`, the `readme` stage into the README.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.reports import site_report
+from pipeline.tracker import registry
+
+TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NOMT", "NOFPA", "ANEES",
+                   "plots_per_second")
+
+GOSPA_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "tracks_per_truth",
+                 "track_purity")
+
+SCENE_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "fragmentation",
+                 "tracks_per_truth", "track_purity", "plots_per_second")
+
+MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
+
+FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
+
+SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
+               "noise and clutter) flown past a radar at each site of `evaluate.sites` (`dvc repro evaluate_sites`, "
+               "`reports/site_metrics.json`). Per tracker: its position error (MAE) at the training site, and at "
+               "each other site the MAE and its ratio to the training site's; **off**: more than "
+               f"{site_report.TOLERANCE:.0%} away.")
+
+GRADIENT_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "singer": "Singer", "imm": "IMM (CV + CA)"}
+
+SCALED_TITLE = "Learned estimators against filters tuned by gradient descent and by Nelder-Mead"
+
+SCALED_INTRO = (
+    "The network-scaled Kalman filter (issue 17, seed 003: a small network scales Q, R and Singer's manoeuvre "
+    "frequency at each step, `pipeline/learning/kalman_net.py`), the LSTM update on a CA Kalman prediction (issue 18, "
+    "seed 001: an LSTM cell in place of the measurement update, its covariance from Monte-Carlo dropout, "
+    "`pipeline/learning/lstm_update.py`, `dvc repro train_lstm_update`), the same torch filters with Q, an R scale and the "
+    "initial spreads tuned by gradient descent on the same loss, data and truncation (`pipeline/filters/gradient_tuning.py`; "
+    "`dvc repro train_kalman_net`; the learned ones trained without the hold-out segments), and the Nelder-Mead tuned "
+    "filters (`tune_kalman`, tuned on the whole train split, hold-out included), on the hold-out windows of the table "
+    "above: each filter started at a window's first plot, scored at its last (`pipeline/learning/filter_holdout.py`). "
+    "Turns: the windows of lowest truth linearity (share `lstm_update.turn_share`), straight: the rest. "
+    "NEES: the position error's e' P^-1 e with the filter's own covariance, 3 if it tells the truth; **in**: the "
+    "ANEES inside its chi-square 95 % bounds. Within x % of range: the share of windows whose error is at most x % of "
+    "the target's true range (seed 001's accuracy measure).")
+
+
+
+def estimator_table(detailed: dict) -> str:
+    """The hold-out's `filter_holdout.detailed_scores` of every estimator, best mean error first."""
+    forms = (("mean_error_m", "{:.1f}"), ("rmse_m", "{:.1f}"), ("p95_error_m", "{:.1f}"), ("turn_mean_error_m", "{:.1f}"),
+             ("straight_mean_error_m", "{:.1f}"))
+    shares = list(next(iter(detailed["filters"].values()))["within_range_share"])
+    low, high = next(iter(detailed["filters"].values()))["anees_bounds"]
+    lines = ["| estimator | mean error (m) | RMSE (m) | 95th percentile (m) | turns (m) | straight (m) | "
+             f"ANEES (95 % bounds {low:.2f}-{high:.2f}) | " + " | ".join(f"within {float(share):.1%} of range"
+                                                                       for share in shares) + " |",
+             "|---" * (7 + len(shares)) + "|"]
+    for name, values in sorted(detailed["filters"].items(), key=lambda item: item[1]["mean_error_m"]):
+        lines.append(f"| {name} | " + " | ".join(form.format(values[key]) for key, form in forms)
+                     + f" | {values['anees']:.2f}{' in' if values['anees_inside'] else ''} | "
+                     + " | ".join(f"{values['within_range_share'][share]:.1%}" for share in shares) + " |")
+    return "\n".join(lines)
+
+
+
+def scaled_filter_tables(detailed: dict, result: dict) -> list[str]:
+    """The hold-out scores (`estimator_table`) and the mean error against the noise factor, as two tables."""
+    factors = result["noise_factors"]
+    noise = ["| filter | " + " | ".join(f"noise x {f:g} (m)" for f in factors) + " |", "|---" * (len(factors) + 1) + "|"]
+    for name, errors in result["mean_error_by_noise_m"].items():
+        noise.append(f"| {name} | " + " | ".join(f"{e:.1f}" for e in errors) + " |")
+    return [estimator_table(detailed),
+            f"Mean error with the hold-out plots measured again from the truth, the radar's sigmas times each factor "
+            f"(unknown to every filter, which keeps the nominal R; one draw per factor, seed "
+            f"`kalman_net.noise_seed`):", "\n".join(noise), "![Mean error against the noise factor](noise_scales.png)"]
+
+
+
+def scaled_verdict(result: dict) -> list[str]:
+    """Each learned estimator's (network-scaled filter, LSTM update) hold-out mean error against the
+    best gradient-tuned and the best Nelder-Mead tuned filter (issue 17's goal: 10 % below the former
+    and below the latter; issue 18's: below the tuned CA and IMM)."""
+    errors = {name: values["mean_error_m"] for name, values in result["filters"].items()}
+    sentences = []
+    for learned in (name for name in errors if name.startswith("network-scaled") or name == "LSTM update"):
+        for method in ("gradient-tuned", "Nelder-Mead tuned"):
+            group = [name for name in errors if name.endswith(method)]
+            if group:
+                best = min(group, key=errors.get)
+                change = errors[learned] / errors[best] - 1.0
+                sentences.append(f"- Hold-out filtering, {learned} filter {errors[learned]:.1f} m against the best "
+                                 f"{method} filter ({best}) {errors[best]:.1f} m: {abs(change):.1%} "
+                                 f"{'below' if change < 0 else 'above'}.")
+    return sentences
+
+
+
+def _cell(value: float | None, form: str) -> str:
+    return "n/a" if value is None or not np.isfinite(value) else form.format(value)
+
+
+
+def by_ospa(runs: dict[str, dict]) -> list[str]:
+    """Run names, best (lowest) OSPA first; runs without one last."""
+    return sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf)
+
+
+
+def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
+    """The verdict on the radar sites and the table of the runs scored there (those of `runs`
+    that `sites` has, best OSPA first); nothing when there are no sites besides the training one."""
+    if len(sites["sites"]) < 2:
+        return []
+    scored = [name for name in by_ospa(runs) if name in sites["runs"]]  # evaluate.site_runs and the references
+    neural = [name for name in scored if registry.family_of_run(name) == registry.NEURAL]
+    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, scored)]
+
+
+
+CONTINUITY_INTRO = (
+    "How many pieces each aircraft's track falls into (confirmed tracks that followed it, per route: "
+    "`pipeline/bench/tracker_metrics.py`) and the share of its plots in confirmed tracks (ROCA), over all test "
+    "routes and by route strategy; each cell is tracks per aircraft · ROCA. Runs named `_m_of_n` are tracked "
+    "and scored under M-of-N confirmation and time-out deletion, the others under the thesis's weights "
+    "(`tracker.management`). The oracle's figure is the floor the routes allow: an aircraft that leaves "
+    "coverage and comes back is two tracks even with the true association.")
+
+
+
+def continuity_table(runs: dict[str, dict], by_strategy: dict[str, dict]) -> str:
+    """Tracks per aircraft and ROCA of every run (references first, then by method, window and
+    rule, so a run under both rules is two adjacent rows), over all routes and per strategy."""
+    strategies = list(next(iter(by_strategy.values()), {}))
+    order = list(registry.METHODS)
+
+    def position(name: str) -> tuple:
+        if name.endswith("_reference"):
+            return (-1, 0.0, "", name)
+        method, window, rule = registry.run_parts(name)
+        return (order.index(method) if method in order else len(order), float(window), rule or "", name)
+
+    def cell(values: dict) -> str:
+        return f"{_cell(values.get('tracks_per_aircraft'), '{:.2f}')} · {_cell(values.get('ROCA'), '{:.3f}')}"
+
+    lines = ["| tracker | all routes | " + " | ".join(strategies) + " |", "|---" * (len(strategies) + 2) + "|"]
+    for name in sorted(runs, key=position):
+        lines.append(f"| {name} | {cell(runs[name])} | "
+                     + " | ".join(cell(by_strategy.get(name, {}).get(s, {})) for s in strategies) + " |")
+    return "\n".join(lines)
+
+
+
+def tracker_table(runs: dict[str, dict]) -> str:
+    forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "tracks_per_aircraft": "{:.2f}",
+             "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
+             "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
+    header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "aircraft tracks per route", "NOMT",
+              "NOFPA", "ANEES (3 = consistent)", "plots/s"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    for name in by_ospa(runs):
+        values = runs[name]
+        lines.append(f"| {name} | " + " | ".join(_cell(values.get(m), forms[m]) for m in TRACKER_METRICS) + " |")
+    return "\n".join(lines)
+
+
+
+GOSPA_INTRO = (
+    "GOSPA (α = 2, `pipeline/bench/gospa.py`) on the same sets of each scan as OSPA: a missed aircraft or a false "
+    "track costs c/2^(1/p), not c, and nothing is divided by the number of aircraft. Its parts are each scan's "
+    "GOSPA split in proportion to the localisation, missed and false terms (before the root), so the three add "
+    "up to GOSPA. A track switch is an aircraft's assigned confirmed track changing to another (a scan without "
+    "one in between is no reset), summed over routes; tracks assigned per aircraft are the distinct confirmed "
+    "tracks ever assigned to it; purity is the share of a confirmed track's assigned scans on its most frequent "
+    "aircraft, averaged over tracks.")
+
+
+
+def gospa_table(runs: dict[str, dict]) -> str:
+    """GOSPA and its parts, switches, tracks per truth and purity of the runs that have them (reports
+    before GOSPA have none: then no table), best GOSPA first."""
+    scored = {name: values for name, values in runs.items() if values.get("GOSPA") is not None}
+    if not scored:
+        return ""
+    forms = {"GOSPA": "{:.0f}", "GOSPA_localisation": "{:.0f}", "GOSPA_missed": "{:.0f}", "GOSPA_false": "{:.0f}",
+             "track_switches": "{:.0f}", "tracks_per_truth": "{:.2f}", "track_purity": "{:.3f}"}
+    header = ["tracker", "GOSPA (m)", "localisation (m)", "missed (m)", "false (m)", "track switches",
+              "tracks assigned per aircraft", "track purity"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    for name in sorted(scored, key=lambda n: scored[n]["GOSPA"]):
+        lines.append(f"| {name} | " + " | ".join(_cell(scored[name].get(m), forms[m]) for m in GOSPA_METRICS) + " |")
+    return "\n".join(lines)
+
+
+
+SCENES_TITLE = "Many aircraft: GOSPA and its parts, switches"
+
+
+
+def scenes_intro(scenes: dict, cutoff_m: float, order: float) -> str:
+    """What the scenes table scores, with the scenes' size (`reports/scene_metrics.json`)."""
+    return (f"{scenes['scenes']} scenes of {scenes['aircraft_per_scene']} aircraft, {scenes['duration_s'] / 60:.0f} "
+            f"minutes each ({scenes['plots']['target']:,} target and {scenes['plots']['false']:,} false plots; "
+            "`pipeline/simulation/scenes.py`: in every scene two routes crossing at one altitude at 10-30°, a formation of 2-4 "
+            "aircraft 0.5-3 km apart that splits, aircraft entering and leaving coverage, the others on the route "
+            "strategies), tracked whole by every run of `evaluate.scene_runs` and the oracle (`dvc repro "
+            "evaluate_scenes`). GOSPA per scan over the aircraft in coverage (cutoff "
+            f"{cutoff_m:.0f} m, order {order:g}) with its parts, means over all scans; track switches summed over all "
+            "aircraft, an aircraft keeping its track while it stays within the cutoff (CLEAR MOT's rule, "
+            "`pipeline/bench/gospa.py`); fragmentation: the tracks assigned to an aircraft beyond the first, per "
+            "aircraft; purity per confirmed track; plots/s: tracking alone, one core. Best GOSPA first; "
+            f"`reports/scene_example.png`: scene {scenes['example']['scene']} tracked by {scenes['example']['run']}.")
+
+
+
+def scenes_table(runs: dict[str, dict]) -> str:
+    """GOSPA and its parts, switches, fragmentation, tracks per truth, purity and speed of every run on
+    the scenes, best GOSPA first."""
+    forms = {"GOSPA": "{:.0f}", "GOSPA_localisation": "{:.0f}", "GOSPA_missed": "{:.0f}", "GOSPA_false": "{:.0f}",
+             "track_switches": "{:.0f}", "fragmentation": "{:.2f}", "tracks_per_truth": "{:.2f}",
+             "track_purity": "{:.3f}", "plots_per_second": "{:,.0f}"}
+    header = ["tracker", "GOSPA (m)", "localisation (m)", "missed (m)", "false (m)", "track switches",
+              "fragmentation", "tracks assigned per aircraft", "track purity", "plots/s"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
+        lines.append(f"| {name} | " + " | ".join(_cell(runs[name].get(m), forms[m]) for m in SCENE_METRICS) + " |")
+    return "\n".join(lines)
+
+
+
+def holdout_table(holdout: dict) -> str:
+    """The `holdout` part of comparison.json as a table."""
+    lines = ["| estimator | filter: error of the last plot's estimate (m) | predictor: error of the next state (m) |",
+             "|---|---|---|",
+             f"| raw plot | {holdout['raw_plot_error_m']:.1f} | |",
+             f"| linear extrapolation | | {holdout['linear_extrapolation_error_m']:.1f} |",
+             f"| networks (filter, predictor) | {holdout['network_filter_error_m']:.1f} | "
+             f"{holdout['network_prediction_error_m']:.1f} |"]
+    for kind, label in FILTER_LABELS.items():
+        if kind in holdout["filter_error_m"]:
+            lines.append(f"| {label}, tuned | {holdout['filter_error_m'][kind]:.1f} | "
+                         f"{holdout['prediction_error_m'][kind]:.1f} |")
+    return "\n".join(lines)
+
+
+
+def tuning_table(tuning: dict) -> str:
+    lines = [f"| filter | process noise | velocity spread (m/s) | model switch probability | {tuning['cost']} before | "
+             "after | RMSE (m) | raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % | "
+             "target plots outside the gate |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for kind, values in tuning["filters"].items():
+        after = values["after"]
+        switching = f"{values['switch_probability']:.3g}" if len(values["noise_std"]) > 1 else "-"
+        lines.append(
+            f"| {FILTER_LABELS[kind]} | {', '.join(f'{v:.3g}' for v in values['noise_std'])} | "
+            f"{values['velocity_std_mps']:.0f} | {switching} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
+            f"{after['rmse_m']:.1f} | {after['plot_rmse_m']:.1f} | {after['anees']:.3f} | "
+            f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} | "
+            f"{after['gate_misses']:.2%} (gate allows {after['gate_allowance']:.1%}) |")
+    return "\n".join(lines)
+
+
+
+def verdict(runs: dict[str, dict], holdout: dict) -> list[str]:
+    """Plain sentences on who wins what, from the numbers."""
+    trackers = {name: values for name, values in runs.items() if registry.family_of_run(name) != registry.REFERENCE}
+    neural = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.NEURAL}
+    classical = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.CLASSICAL}
+    sentences = []
+
+    def best(group: dict, metric: str, low: bool = True) -> str:
+        return min(group, key=lambda n: group[n][metric] if low else -group[n][metric])
+
+    if neural and classical:
+        for metric, low, what in (("OSPA", True, "OSPA"), ("ROCA", False, "share of target plots in confirmed "
+                                                                          "tracks (ROCA)")):
+            n, c = best(neural, metric, low), best(classical, metric, low)
+            winner = c if (classical[c][metric] < neural[n][metric]) == low else n
+            sentences.append(f"- {what}: best neural {n} {neural[n][metric]:.4g}, best classical {c} "
+                             f"{classical[c][metric]:.4g}; **{winner}** wins.")
+        kept = {group: {k: v for k, v in members.items() if v["ROCA"] >= MAE_MIN_ROCA}
+                for group, members in (("neural", neural), ("classical", classical))}
+        if kept["neural"] and kept["classical"]:
+            n, c = best(kept["neural"], "MAE"), best(kept["classical"], "MAE")
+            winner = c if classical[c]["MAE"] < neural[n]["MAE"] else n
+            sentences.append(f"- position error (MAE) among trackers keeping at least {MAE_MIN_ROCA:.0%} of the "
+                             f"target plots: best neural {n} {neural[n]['MAE']:.4g} m, best classical {c} "
+                             f"{classical[c]['MAE']:.4g} m; **{winner}** wins.")
+    if "oracle_reference" in runs and trackers:
+        top = best(trackers, "OSPA")
+        sentences.append(f"- True association (oracle, tuned IMM) reaches OSPA {runs['oracle_reference']['OSPA']:.4g} "
+                         f"and MAE {runs['oracle_reference']['MAE']:.4g} m against the best tracker's "
+                         f"{trackers[top]['OSPA']:.4g} and {trackers[top]['MAE']:.4g} m ({top}): the gap is what "
+                         "association costs.")
+    if holdout["filter_error_m"]:
+        kind = min(holdout["filter_error_m"], key=holdout["filter_error_m"].get)
+        sentences.append(f"- Hold-out filtering: the filter network {holdout['network_filter_error_m']:.1f} m, the "
+                         f"best tuned filter ({FILTER_LABELS[kind]}) {holdout['filter_error_m'][kind]:.1f} m.")
+        kind = min(holdout["prediction_error_m"], key=holdout["prediction_error_m"].get)
+        sentences.append(f"- Hold-out prediction: the predictor network {holdout['network_prediction_error_m']:.1f} "
+                         f"m, the best tuned filter ({FILTER_LABELS[kind]}) "
+                         f"{holdout['prediction_error_m'][kind]:.1f} m.")
+    return sentences
+

@@ -1,0 +1,278 @@
+"""Pictures of the simulated data, returned as PNG bytes so the caller can write them atomically."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pyarrow as pa  # noqa: E402
+import pymap3d  # noqa: E402
+
+from pipeline.figure_png import png  # noqa: E402
+from pipeline.geometry import geodesy  # noqa: E402
+from pipeline.params import STRATEGIES, Params  # noqa: E402
+from pipeline.simulation.data_summary import target_plot_errors_m, target_plot_intervals_s  # noqa: E402
+from pipeline.tracker.management import TrackManagement  # noqa: E402
+from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE, family_of_run  # noqa: E402
+from pipeline.tracker.updates import confirmed_associations, positions  # noqa: E402
+
+FAMILY_COLOURS = {NEURAL: "tab:blue", CLASSICAL: "tab:orange", REFERENCE: "tab:grey"}
+
+
+def _local_km(table: pa.Table, params: Params, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
+    radar = params.radar
+    east, north, _ = pymap3d.ecef2enu(table.column(f"{prefix}x_ecef_m").to_numpy(),
+                                      table.column(f"{prefix}y_ecef_m").to_numpy(),
+                                      table.column(f"{prefix}z_ecef_m").to_numpy(), radar.latitude_deg,
+                                      radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
+    return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
+
+
+def route_examples(routes: pa.Table, plots: pa.Table, params: Params, per_strategy: int) -> bytes:
+    """A few routes of each strategy on the radar's plane, with their target and false plots; each
+    route's altitude span is in its legend (climb_dive routes climb and dive)."""
+    rows = -(-len(STRATEGIES) // 2)  # two strategies a row
+    figure, axes = plt.subplots(rows, 2, figsize=(13, 6.4 * rows), squeeze=False)
+    half = params.radar.range_max_m * np.sqrt(2.0) / 2000.0
+    for axis, strategy in zip(axes.flat, STRATEGIES):
+        ids = np.unique(routes.filter(pa.compute.equal(routes.column("strategy"), strategy))
+                        .column("route_id").to_numpy())[:per_strategy]
+        for colour, route_id in zip(plt.cm.tab10.colors, ids):
+            route = routes.filter(pa.compute.equal(routes.column("route_id"), route_id))
+            scenario = plots.filter(pa.compute.equal(plots.column("scenario_id"), route_id))
+            false = scenario.filter(pa.compute.invert(scenario.column("is_target")))
+            target = scenario.filter(scenario.column("is_target"))
+            axis.scatter(*_local_km(false, params), s=1, color=colour, alpha=0.12, linewidths=0)
+            altitude_km = route.column("altitude_m").to_numpy() / 1000.0
+            axis.plot(*_local_km(route, params), color=colour, lw=1.4,
+                      label=f"route {route_id} ({route.column('aircraft_type')[0].as_py()}, "
+                            f"{altitude_km.min():.1f}-{altitude_km.max():.1f} km up)")
+            axis.scatter(*_local_km(target, params), s=5, color="black", linewidths=0)
+        axis.plot([-half, half, half, -half, -half], [-half, -half, half, half, -half], "k--", lw=0.8)
+        axis.plot(0, 0, "k^", ms=8)
+        axis.set_title(f"{strategy.replace('_', ' ')}: truth (line), target plots (black), false plots (faint)",
+                       fontsize=9)
+        axis.set_xlabel("east of radar (km)")
+        axis.set_ylabel("north of radar (km)")
+        axis.set_aspect("equal")
+        axis.legend(fontsize=7, loc="lower left")
+    figure.tight_layout()
+    return png(figure)
+
+
+def radar_statistics(plots: pa.Table, truth: pa.Table) -> bytes:
+    """Inter-plot intervals, plot errors and detection rate against range."""
+    figure, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    intervals = target_plot_intervals_s(plots)
+    axes[0].hist(intervals, bins=np.arange(0.0, max(60.0, float(np.percentile(intervals, 99.5)) if len(intervals)
+                                                    else 60.0), 0.5), color="tab:blue")
+    axes[0].axvline(18.0, color="k", ls="--", lw=0.8, label="18 s segment gap")
+    axes[0].set_yscale("log")
+    axes[0].set_xlabel("interval between a target's consecutive plots (s)")
+    axes[0].set_ylabel("count")
+    axes[0].legend(fontsize=8)
+
+    errors = target_plot_errors_m(plots)
+    axes[1].hist(errors, bins=100, range=(0.0, float(np.percentile(errors, 99.5)) if len(errors) else 1.0),
+                 color="tab:orange")
+    axes[1].set_xlabel("target plot error, eqs 4.1-4.6 vs truth (m)")
+    axes[1].set_ylabel("count")
+    axes[1].set_title(f"mean {errors.mean():.1f} m, median {np.median(errors):.1f} m" if len(errors) else "",
+                      fontsize=9)
+
+    covered = truth.filter(truth.column("in_coverage"))
+    ranges = covered.column("range_m").to_numpy() / 1000.0
+    bins = np.linspace(0.0, max(float(ranges.max()) if len(ranges) else 1.0, 1.0), 21)
+    which = np.digitize(ranges, bins) - 1
+    counts = np.bincount(which, minlength=len(bins))[:-1]
+    hits = np.bincount(which, weights=covered.column("detected").to_numpy(zero_copy_only=False).astype(float),
+                       minlength=len(bins))[:-1]
+    expected = np.bincount(which, weights=covered.column("detection_probability").to_numpy(), minlength=len(bins))[:-1]
+    centres = 0.5 * (bins[1:] + bins[:-1])
+    seen = counts > 0
+    axes[2].plot(centres[seen], hits[seen] / counts[seen], "o-", label="simulated detections")
+    axes[2].plot(centres[seen], expected[seen] / counts[seen], "k--", label="mean Pd from the radar model")
+    axes[2].set_xlabel("slant range (km)")
+    axes[2].set_ylabel("detection rate (targets in coverage)")
+    axes[2].set_ylim(0.0, 1.02)
+    axes[2].legend(fontsize=8)
+    figure.tight_layout()
+    return png(figure)
+
+
+def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bins: int) -> bytes:
+    """Linearity of each material's windows before and after balancing."""
+    figure, axes = plt.subplots(1, len(materials), figsize=(5 * len(materials), 3.8))
+    for axis, (name, (before, after)) in zip(np.atleast_1d(axes), materials.items()):
+        edges = np.linspace(before.min(), before.max(), bins + 1) if len(before) else np.linspace(0, 1, bins + 1)
+        axis.hist(before, bins=edges, color="tab:grey", alpha=0.6, label=f"before ({len(before):,})")
+        axis.hist(after, bins=edges, color="tab:blue", alpha=0.8, label=f"after ({len(after):,})")
+        axis.set_yscale("log")
+        axis.set_xlabel("linearity (eq. 4.7), 1 = straight")
+        axis.set_ylabel("windows")
+        axis.set_title(name)
+        axis.legend(fontsize=8, loc="upper left")
+    figure.tight_layout()
+    return png(figure)
+
+
+def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str) -> bytes:
+    """Training and validation loss per epoch (MSE on scaled windows), log scale."""
+    figure, axis = plt.subplots(figsize=(6.4, 4.0))
+    epochs = np.arange(1, len(train_loss) + 1)
+    axis.plot(epochs, train_loss, label="training")
+    if not np.all(np.isnan(validation_loss)):
+        axis.plot(epochs, validation_loss, label="validation")
+    axis.set_yscale("log")
+    axis.set_xlabel("epoch")
+    axis.set_ylabel("MSE (scaled)")
+    axis.set_title(f"{kind} network")
+    axis.legend()
+    figure.tight_layout()
+    return png(figure)
+
+
+def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str,
+                     management: TrackManagement) -> bytes:
+    """One scenario: the true route, target and false plots near it, and the confirmed tracks' states
+    (confirmed by the run's track management rule `management`)."""
+    radar = params.radar
+
+    def local_km(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        east, north, _ = pymap3d.ecef2enu(ecef[:, 0], ecef[:, 1], ecef[:, 2], radar.latitude_deg,
+                                          radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
+        return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
+
+    times = scenario.plots.time
+    truth_e, truth_n = local_km(scenario.truth(np.linspace(times.min(), times.max(), 2000)))
+    plot_e, plot_n = local_km(scenario.plots.position)
+    target = np.array([scenario.is_target[int(p)] for p in scenario.plots.plot_id], dtype=bool)
+    margin = 20.0
+    box = (truth_e.min() - margin, truth_e.max() + margin, truth_n.min() - margin, truth_n.max() + margin)
+    shown = (plot_e > box[0]) & (plot_e < box[1]) & (plot_n > box[2]) & (plot_n < box[3])
+    figure, axis = plt.subplots(figsize=(8, 8))
+    axis.scatter(plot_e[shown & ~target], plot_n[shown & ~target], s=2, color="0.7", label="false plots")
+    axis.scatter(plot_e[target], plot_n[target], s=4, color="black", label="target plots")
+    axis.plot(truth_e, truth_n, color="tab:green", lw=1.0, label="truth")
+    confirmed = confirmed_associations(updates, management)
+    states = positions(updates)
+    for number, track_id in enumerate(np.unique(updates["track_id"][confirmed])):
+        rows = confirmed & (updates["track_id"] == track_id)
+        east, north = local_km(states[rows])
+        axis.plot(east, north, "-", lw=1.6, color=plt.cm.tab10.colors[number % 10],
+                  label="confirmed tracks" if number == 0 else None)
+    axis.set_xlim(box[0], box[1])
+    axis.set_ylim(box[2], box[3])
+    axis.set_aspect("equal")
+    axis.set_xlabel("east of radar (km)")
+    axis.set_ylabel("north of radar (km)")
+    axis.set_title(f"scenario {scenario.scenario_id}, {run_name}: {len(np.unique(updates['track_id'][confirmed]))} "
+                   "confirmed tracks", fontsize=10)
+    axis.legend(fontsize=8, loc="best")
+    figure.tight_layout()
+    return png(figure)
+
+
+def comparison_picture(runs: dict[str, dict]) -> bytes:
+    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top."""
+    names = sorted(runs, key=lambda n: runs[n]["OSPA"], reverse=True)
+    figure, axes = plt.subplots(1, 3, figsize=(13, 0.4 * len(names) + 1.5), sharey=True)
+    for axis, (metric, label) in zip(axes, (("OSPA", "OSPA (m)"), ("MAE", "MAE of confirmed tracks (m)"),
+                                            ("ROCA", "target plots in confirmed tracks (ROCA)"))):
+        values = [runs[n][metric] if runs[n][metric] is not None else np.nan for n in names]
+        colours = [FAMILY_COLOURS[family_of_run(n)] for n in names]
+        axis.barh(names, values, color=colours)
+        axis.set_xlabel(label)
+        axis.grid(axis="x", alpha=0.3)
+    axes[0].set_title("blue: neural, orange: classical, grey: references", loc="left", fontsize=9)
+    figure.tight_layout()
+    return png(figure)
+
+
+def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
+    """Share of scans at or below each OSPA, one line per tracker: where the mean hides
+    whether a tracker is often slightly off or sometimes missing (OSPA at the cutoff)."""
+    figure, axis = plt.subplots(figsize=(9, 5.5))
+    colours = plt.get_cmap("tab20").colors
+    for index, name in enumerate(sorted(per_scan, key=lambda n: per_scan[n].mean())):
+        values = np.sort(per_scan[name])
+        style = "--" if name.endswith("_reference") else "-"
+        axis.plot(values, np.arange(1, len(values) + 1) / len(values), style, label=name, linewidth=1.2,
+                  color=colours[index % len(colours)])
+    axis.set_xlim(0, cutoff * 1.02)
+    axis.set_xlabel(f"OSPA of a scan (m); {cutoff:.0f} m = a missed or a false track")
+    axis.set_ylabel("share of scans")
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=7, ncol=2, loc="lower right")
+    figure.tight_layout()
+    return png(figure)
+
+
+def noise_scale_picture(result: dict) -> bytes:
+    """Mean hold-out error of each filter against the factor on the radar's noise (`filter_holdout.compare`)."""
+    figure, axes = plt.subplots(figsize=(7, 4.5))
+    for name, errors in result["mean_error_by_noise_m"].items():
+        axes.plot(result["noise_factors"], errors, marker="o", label=name)
+    axes.set_xscale("log", base=2)
+    axes.set_yscale("log")
+    axes.set_xlabel("plot noise: the radar's sigmas times")
+    axes.set_ylabel("mean position error at the window's last plot (m)")
+    axes.set_title("Hold-out windows, noise level unknown to the filters")
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend(fontsize=7)
+    return png(figure)
+
+
+def scene_picture(scene: object, updates: dict[str, np.ndarray], scored: object, management: TrackManagement,
+                  params: Params, run_name: str) -> bytes:
+    """One multi-target scene (`scene_evaluation.Scene`) tracked by a run: the aircraft's true
+    routes in grey, the confirmed tracks' states coloured by track identity (confirmed by the run's
+    rule `management`), and a red cross where an aircraft's assigned track switched to another
+    (`scored`, the scene's `gospa.ScanGospa`), at the aircraft's position in that scan. Left the
+    whole scene, right the crossing pair's neighbourhood (50 km across)."""
+    radar = params.radar
+
+    def local_km(ecef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        east, north, _ = pymap3d.ecef2enu(ecef[:, 0], ecef[:, 1], ecef[:, 2], radar.latitude_deg,
+                                          radar.longitude_deg, radar.height_m, ell=geodesy.WGS84_ELLIPSOID)
+        return np.asarray(east) / 1000.0, np.asarray(north) / 1000.0
+
+    period = radar.scan_period_s
+    times = np.linspace(scene.plots.time.min(), scene.plots.time.max(), 2000)
+    in_order = np.lexsort((scored.scan, scored.truth))
+    truth, scan, track = scored.truth[in_order], scored.scan[in_order], scored.track[in_order]
+    switched = np.flatnonzero((truth[1:] == truth[:-1]) & (track[1:] != track[:-1])) + 1
+    switches = np.array([scene.trajectories[int(truth[k])](np.array([(scan[k] + 0.5) * period]))[0]
+                         for k in switched]).reshape(-1, 3)
+    crossing = [aircraft for aircraft, role in scene.roles.items() if role == "crossing"]
+    first, second = (scene.trajectories[aircraft](times) for aircraft in crossing[:2])
+    centre = local_km(first[[int(np.argmin(np.linalg.norm(first - second, axis=1)))]])
+    confirmed = confirmed_associations(updates, management)
+    states = positions(updates)
+    track_ids = np.unique(updates["track_id"][confirmed])
+    colours = plt.get_cmap("tab20").colors
+    figure, axes = plt.subplots(1, 2, figsize=(15, 7.5))
+    for axis in axes:
+        for aircraft, trajectory in scene.trajectories.items():
+            axis.plot(*local_km(trajectory(times)), color="0.6", lw=2.5, alpha=0.6,
+                      label="aircraft (truth)" if aircraft == 0 else None)
+        for number, track_id in enumerate(track_ids):
+            rows = confirmed & (updates["track_id"] == track_id)
+            axis.plot(*local_km(states[rows]), "-", lw=1.0, color=colours[number % len(colours)],
+                      label="confirmed tracks (colour: identity)" if number == 0 else None)
+        axis.scatter(*local_km(switches), marker="x", s=60, color="red", zorder=5,
+                     label=f"track switches ({len(switches)})")
+        axis.set_aspect("equal")
+        axis.set_xlabel("east of radar (km)")
+        axis.set_ylabel("north of radar (km)")
+    axes[0].plot(0, 0, "k^", ms=8)
+    axes[0].set_title(f"scene {scene.scenario_id}, {run_name}: {len(scene.trajectories)} aircraft, "
+                      f"{len(track_ids)} confirmed tracks", fontsize=10)
+    axes[0].legend(fontsize=8, loc="best")
+    axes[1].set_xlim(centre[0][0] - 25.0, centre[0][0] + 25.0)
+    axes[1].set_ylim(centre[1][0] - 25.0, centre[1][0] + 25.0)
+    axes[1].set_title("around the crossing pair's closest approach", fontsize=10)
+    figure.tight_layout()
+    return png(figure)

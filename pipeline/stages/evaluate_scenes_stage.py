@@ -1,0 +1,40 @@
+"""Stage `evaluate_scenes`: every run of `evaluate.scene_runs` and the oracle over the multi-target
+scenes (`pipeline.simulation.scenes`, stage `scenes`), scored by `pipeline.bench.scene_evaluation`.
+
+Writes `reports/scene_metrics.json` (the scenes' size and plot counts, and per run GOSPA with its
+parts, track switches, tracks per truth, fragmentation, purity and speed) and
+`reports/scene_example.png`, the busiest scene (most target plots) tracked by
+`evaluate.example_run`.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from pipeline import io
+from pipeline.bench import scene_evaluation
+from pipeline.params import Params
+from pipeline.reports import figures
+
+log = logging.getLogger("pipeline")
+
+
+def run_evaluate_scenes(params: Params, scenes_dir: Path, models_dir: Path, reports_dir: Path) -> None:
+    evaluation = scene_evaluation.prepare(params, scenes_dir, models_dir)
+    target_plots = [int((scene.plots.target_id >= 0).sum()) for scene in evaluation.scenes]
+    busiest, run_name = int(np.argmax(target_plots)), params.evaluate.example_run
+    runs, (updates, scored) = scene_evaluation.evaluate_all(evaluation, params.workers, (run_name, busiest))
+    scenes = params.scenes
+    plots = sum(len(scene.plots) for scene in evaluation.scenes)
+    report = {"scenes": scenes.count, "aircraft_per_scene": scenes.aircraft, "duration_s": scenes.duration_s,
+              "plots": {"target": sum(target_plots), "false": plots - sum(target_plots)},
+              "example": {"scene": evaluation.scenes[busiest].scenario_id, "run": run_name}, "runs": runs}
+    picture = figures.scene_picture(evaluation.scenes[busiest], updates, scored, evaluation.management[run_name],
+                                    params, run_name)
+    io.write_json(report, reports_dir / "scene_metrics.json")
+    io.write_bytes(picture, reports_dir / "scene_example.png")
+    log.info("evaluate_scenes: %d runs over %d scenes -> %s, %s", len(runs), scenes.count,
+             reports_dir / "scene_metrics.json", reports_dir / "scene_example.png")

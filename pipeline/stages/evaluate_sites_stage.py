@@ -1,0 +1,39 @@
+"""Stage `evaluate_sites`: the evaluated routes flown past radars at `evaluate.sites`, every
+tracker scored at each (`pipeline.bench.sites`); the training site's row is the `evaluate` stage's.
+
+Writes `reports/site_metrics.json`: per site its place, plot counts and every run's metrics
+as `reports/tracker_metrics.json` has them, without the speeds.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+from pipeline import io
+from pipeline.bench import evaluation, sites
+from pipeline.params import Params
+
+log = logging.getLogger("pipeline")
+
+
+def training_runs(params: Params, path: Path) -> dict[str, dict]:
+    """The `evaluate` stage's metrics at the training site of the runs scored at sites
+    (`evaluate.site_runs`) and the references, checked to be of params' runs."""
+    if not path.is_file():
+        raise io.InputError(f"{path}: file not found (run `dvc repro evaluate`)")
+    runs = json.loads(path.read_text())["runs"]
+    expected = sorted(evaluation.run_management(params))  # every run and reference, by name
+    if sorted(runs) != expected:
+        raise io.InputError(f"{path}: runs {sorted(runs)}, but params evaluate {expected}; "
+                            "run `dvc repro evaluate`")
+    at_sites = ({run.name for run in params.evaluate.runs_at_sites()}
+                | {f"{method}_reference" for method in params.evaluate.references})
+    return {name: values for name, values in runs.items() if name in at_sites}
+
+
+def run_evaluate_sites(params: Params, models_dir: Path, reports_dir: Path) -> None:
+    report = sites.site_metrics(params, training_runs(params, reports_dir / "tracker_metrics.json"), models_dir)
+    io.write_json(report, reports_dir / "site_metrics.json")
+    log.info("evaluate_sites: %d sites -> %s", len(report["sites"]), reports_dir / "site_metrics.json")

@@ -1,0 +1,151 @@
+"""`python -m pipeline track`: a tracker on a user's recording.
+
+Input is either Parquet plots in the schema `simulate` writes (truth columns optional) with
+a radar description, or ASTERIX CAT048 plots with CAT034 north markers; either becomes one plot
+table (`pipeline.recordings.plot_table`), each plot with its radar's position and measurement covariance,
+so a recording may hold plots of several radars, anywhere on Earth. The networks' default
+`radial` window frame (`pipeline.learning.scaling`) sees a flight relative to its radar, the same at any
+site; networks trained with `windows.frame: ecef` (the thesis's) do not carry to a radar far from
+the training site. The method loads only what it needs
+(`pipeline.tracker.loading`): a classical one only the tuned filters.
+
+Each scenario of the recording (all of it when the plots have no scenario id) is tracked on its
+own, the plots of all its radars together.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+from datetime import date
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline import io
+from pipeline.params import Params
+from pipeline.recordings import asterix_io, plot_table, streamed_recording
+from pipeline.recordings.plot_table import NO_SCENARIO
+from pipeline.tracker.recording import TRACK_SCHEMA, tracked_parts
+from pipeline.tracker.refusals import RefusalCounts, warn_refusals
+
+log = logging.getLogger("pipeline")
+
+TRACK_ROW_GROUP_ROWS = 65536  # rows per row group of `track`'s output: what the writer holds (about 200 B a row)
+
+
+def summary_path(out: Path) -> Path:
+    """Where `track` writes the summary of a run with output `out`: beside it, `<stem>.summary.json`."""
+    return out.with_name(f"{out.stem}.summary.json")
+
+
+class RunSummary:
+    """What a user checks first after `track`, gathered as the track updates are written: the plots
+    tracked, the records or plots left out by reason (`Plots.skipped`), the confirmed tracks, and
+    per radar its plots and the confirmed tracks it fed, and the plots a learned gate refused that the
+    window would have taken (`refusals`, `pipeline.tracker.refusals`). A track is one (scenario, track id): each
+    scenario's radars are tracked together, so a track may hold plots of several radars; it counts
+    once in the total and once for each radar whose plots updated it while confirmed. Holds the
+    confirmed tracks' keys, not the updates."""
+
+    def __init__(self, plots: int, plot_counts: Mapping[int, int], skipped: Mapping[str, int]) -> None:
+        self.plots, self.plot_counts, self.skipped = plots, plot_counts, skipped
+        self.updates = 0
+        self.refusals = RefusalCounts()
+        self.confirmed: dict[int, set[tuple[int, int]]] = {radar_id: set() for radar_id in plot_counts}
+
+    def add(self, tracks: pa.Table) -> None:
+        """Count a part of the track updates (TRACK_SCHEMA)."""
+        self.updates += tracks.num_rows
+        confirmed = np.asarray(tracks.column("status")) == "confirmed"
+        radar_ids = np.asarray(tracks.column("radar_id"))[confirmed].tolist()
+        scenario_ids = np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO))[confirmed].tolist()
+        track_ids = np.asarray(tracks.column("track_id"))[confirmed].tolist()
+        for radar_id, key in zip(radar_ids, zip(scenario_ids, track_ids)):
+            self.confirmed[radar_id].add(key)
+
+    def report(self) -> dict:
+        radars = {str(r): {"plots": self.plot_counts[r], "confirmed_tracks": len(self.confirmed[r])}
+                  for r in sorted(self.plot_counts)}
+        return {"plots_tracked": self.plots, "skipped": dict(sorted(self.skipped.items())),
+                "plots_skipped": int(sum(self.skipped.values())), "track_updates": self.updates,
+                "confirmed_tracks": len(set().union(*self.confirmed.values())), "radars": radars,
+                "learned_gate": {"plots_in_window": self.refusals.in_window, "plots_refused": self.refusals.refused}}
+
+
+def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
+              first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path,
+              management: str | None = None) -> None:
+    """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
+    summary beside it (`summary_path`), under the track management rule `management` (one of
+    `registry.MANAGEMENT`; None: params' `tracker.management`). The recording is placed, tracked and written
+    `compute.chunk_plots` plots at a time: a Parquet recording is read from its file as it goes
+    (`streamed_recording`), one out of time order sorted first into a temporary folder beside `out`
+    (in its nearest existing folder), removed at the end; an ASTERIX recording is decoded whole
+    first. Nothing is written on an error, nor when `out` or its summary would replace an input
+    (`io.check_outputs`)."""
+    inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
+              "--asterix": asterix_paths}
+    io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
+    if management is not None:
+        params = dataclasses.replace(params, tracker=dataclasses.replace(params.tracker, management=management))
+    if asterix_paths:
+        if first_date is None:
+            raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")
+        if plots_path is not None:
+            raise io.InputError("give --plots (Parquet) or --asterix files, not both")
+        opened = contextlib.nullcontext(plot_table.read_asterix_recording(asterix_paths, first_date, params.radar,
+                                                                          radar_path))
+    else:
+        if plots_path is None or radar_path is None:
+            raise io.InputError("give --plots and --radar (Parquet), or --asterix files")
+        scratch = next(folder for folder in out.absolute().parents if folder.exists())
+        opened = streamed_recording.read_recording(plots_path, radar_path, params.radar, scratch)
+    with opened as recording:
+        _write_tracks(recording, method, window_m, params, models_dir, out,
+                      plots_path or ", ".join(map(str, asterix_paths)))
+
+
+def _write_tracks(recording: streamed_recording.RecordingParts, method: str, window_m: float, params: Params,
+                  models_dir: Path, out: Path, source: Path | str) -> None:
+    """`run_track`'s work once the recording (read from `source`) is open."""
+    summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
+    if not len(recording):
+        log.warning("track: no plots to track in %s: the output will hold no track update", source)
+    with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
+        for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
+                                             window_m, params, models_dir, summary.refusals):
+            written.add(part, new_chunk=first)
+            summary.add(part)
+        report = summary.report()
+        io.write_json(report, summary_path(out))
+    warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
+    skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
+    log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on %d radars -> %s, summary %s",
+             len(recording), f"skipped {skipped}" if skipped else "none skipped", report["track_updates"],
+             report["confirmed_tracks"], len(recording.radars), out, summary_path(out))
+
+
+EXPORT_PLOT_SCHEMA = io.schema(  # the columns of `simulate.PLOT_SCHEMA` that `export_asterix` writes
+    ("scenario_id", pa.int32()), ("scan", pa.int64()), ("time_unix_s", pa.float64()), ("range_m", pa.float64()),
+    ("azimuth_deg", pa.float64()), ("flight_level", pa.float64()),
+)
+
+
+def export_asterix(plots_path: Path, radar_path: Path, scenario_id: int, out: Path) -> None:
+    """Write one simulated scenario as a CAT034 + CAT048 recording; `out` must not be an input."""
+    io.check_outputs({"--plots": [plots_path], "--radar": [radar_path]}, {"--out": out})
+    plots = io.read_parquet(plots_path, EXPORT_PLOT_SCHEMA)
+    plots = plots.filter(pa.compute.equal(plots.column("scenario_id"), scenario_id))
+    if plots.num_rows == 0:
+        raise io.InputError(f"{plots_path}: no plots of scenario {scenario_id}")
+    radar = io.read_parquet(radar_path, pq.read_schema(radar_path)).to_pylist()[0]
+    scans = np.unique(plots.column("scan").to_numpy()) * radar["scan_period_s"]
+    data = asterix_io.encode(plots, radar, scans)
+    with io.atomic_path(out) as temporary:
+        temporary.write_bytes(data)
+    log.info("asterix: scenario %d, %d plots, %d north markers -> %s", scenario_id, plots.num_rows, len(scans), out)

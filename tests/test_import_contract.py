@@ -1,0 +1,38 @@
+"""The import contract of `pipeline/` (pyproject.toml `[tool.importlinter]`, checked by import-linter,
+which counts every import: module level, inside functions and under TYPE_CHECKING): the wings in
+layers, the stages and commands on top, the ground floor at the bottom, and no circle."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.project import REPOSITORY
+
+LINT_IMPORTS = Path(sys.executable).parent / "lint-imports"
+
+
+def lint_imports(root: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(LINT_IMPORTS), "--no-cache"], cwd=root, capture_output=True, text=True,
+                          env={"PYTHONPATH": str(root), "PATH": str(LINT_IMPORTS.parent)})
+
+
+def test_the_package_keeps_its_import_contract() -> None:
+    result = lint_imports(REPOSITORY)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+def test_a_lower_wing_importing_a_higher_one_breaks_the_contract(tmp_path: Path) -> None:
+    """The same check on a copy of the package in which the tracker imports the bench (a lower wing
+    importing a higher one) and the geometry imports the tracker back (a circle): both are named."""
+    shutil.copytree(REPOSITORY / "pipeline", tmp_path / "pipeline", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(REPOSITORY / "pyproject.toml", tmp_path)
+    (tmp_path / "pipeline" / "tracker" / "upward.py").write_text("from pipeline.bench import gospa\n")
+    (tmp_path / "pipeline" / "geometry" / "circle.py").write_text("from pipeline.tracker import upward\n")
+    result = lint_imports(tmp_path)
+    assert result.returncode != 0
+    assert "pipeline.tracker.upward -> pipeline.bench.gospa" in result.stdout
+    assert "No cycles are allowed in pipeline" in result.stdout
