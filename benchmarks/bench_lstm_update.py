@@ -27,7 +27,7 @@ from pipeline import io
 from pipeline.bench.evaluation import read_scenarios
 from pipeline.learning import filter_holdout, materials, model_eval
 from pipeline.learning.lstm_update import LSTMUpdate
-from pipeline.params import load_params
+from pipeline.settings import load_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track

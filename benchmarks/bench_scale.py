@@ -220,7 +220,7 @@ def _untuned_filters(params, folder: Path) -> Path:
 
 
 def _models(spec: dict):
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     from pipeline.tracker.loading import load_models
     params = load_params(spec["params"])
     if spec["models"]:
@@ -297,7 +297,7 @@ def run_child(spec: dict) -> tuple[dict, float]:
 
 def _recording(args, config: Config, folder: Path) -> Path:
     """The folder of the config's recording in `folder`, written the first time it is asked for."""
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     recording = folder / (config.name.replace(" ", "_").replace(",", "") + ("_swapped" if args.out_of_order else ""))
     if not (recording / "radar.parquet").exists():
         write_recording(recording, load_params(args.params).radar, config.aircraft, args.false_plots, config.scans,
@@ -311,7 +311,7 @@ def read_child(spec: dict) -> dict:
     plots chunk by chunk without tracking them: the plots and wall seconds."""
     import contextlib
 
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     from pipeline.recordings import plot_table, streamed_recording
     radar = load_params(spec["params"]).radar
     paths = Path(spec["plots"]), Path(spec["radar"])
@@ -325,7 +325,7 @@ def read_child(spec: dict) -> dict:
 
 def run_reading(args, config: Config, whole: bool, folder: Path) -> dict:
     """`read_child` on the config's recording in a fresh process: plots, wall seconds, peak RSS (bytes)."""
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     recording = _recording(args, config, folder)
     spec = {"params": args.params, "plots": str(recording / "plots.parquet"), "radar": str(recording / "radar.parquet"),
             "whole": whole, "scratch": str(recording), "chunk_plots": load_params(args.params).chunk_plots}
@@ -387,7 +387,7 @@ def main() -> None:
     if "via" in args.methods and not args.models:
         parser.error("via needs trained networks: give --models")
 
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     params = load_params(args.params)
     period = params.radar.scan_period_s
     sweep = [Config(f"{n} aircraft, {args.minutes:g} min", n, round(args.minutes * 60 / period), "aircraft", n)
@@ -464,7 +464,7 @@ def goals(args, rows, base) -> None:
     for method in slow:
         minutes = min(args.minutes, 2.0)
         print(f"\nWhere the time goes: {method}, 1000 aircraft, {minutes:g} min, cProfile (top 10 by own time)")
-        from pipeline.params import load_params
+        from pipeline.settings import load_params
         period = load_params(args.params).radar.scan_period_s
         result, _ = run_child({**base, "method": method, "aircraft": 1000, "scans": round(minutes * 60 / period),
                                "profile": True})

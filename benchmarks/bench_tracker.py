@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from pipeline.bench.evaluation import read_scenarios
-from pipeline.params import load_params
+from pipeline.settings import load_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track

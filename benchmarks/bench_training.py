@@ -30,7 +30,7 @@ import torch
 
 from pipeline.learning.networks import build_network
 from pipeline.learning.training import train
-from pipeline.params import load_params
+from pipeline.settings import load_params
 from pipeline.stages.train_stage import network_config, training_config, training_pairs
 
 

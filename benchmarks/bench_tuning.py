@@ -24,7 +24,8 @@ import yaml
 from pipeline import io
 from pipeline.filters import tuning
 from pipeline.filters.classical_filters import KINDS
-from pipeline.params import load_params, load_params_tree
+from pipeline.params import load_params_tree
+from pipeline.settings import load_params
 from pipeline.simulation import simulate
 from pipeline.stages.tune_stage import start_settings
 

@@ -14,7 +14,8 @@ from pipeline.association.track_association import METHODS as ASSOCIATION_METHOD
 from pipeline.filters.tuning import TuningError
 from pipeline.io import InputError, TrainingDiverged
 from pipeline.learning.experiment_tracking import TrackingError
-from pipeline.params import ParamError, load_params
+from pipeline.params import ParamError
+from pipeline.settings import load_params
 from pipeline.simulation.routes import RouteGenerationError
 from pipeline.tracker.registry import CLASSICAL, MANAGEMENT, METHODS, TRACKERS, UnknownMethod
 

@@ -11,7 +11,8 @@ from typing import Any, Callable, Iterator, Mapping
 
 import pytest
 
-from pipeline.params import STRATEGIES, Params, load_params_tree, parse_params
+from pipeline.params import STRATEGIES, Params, load_params_tree
+from pipeline.settings import parse_params
 from tests.servers import repro_tiny_pipeline
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"

@@ -26,7 +26,8 @@ from pipeline.bench import ospa
 from pipeline.filters import batch_filters, classical_filters, motion_models, tuning
 from pipeline.filters.classical_filters import FilterSettings
 from pipeline.geometry import geodesy
-from pipeline.params import ParamError, parse_params
+from pipeline.params import ParamError
+from pipeline.settings import parse_params
 from pipeline.simulation import routes, simulate
 from pipeline.stages.compare_stage import tuning_table
 from pipeline.stages.tune_stage import run_tune

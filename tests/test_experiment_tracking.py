@@ -23,7 +23,7 @@ from pipeline.learning.experiment_tracking import (
     session,
     tracking_uri,
 )
-from pipeline.params import parse_params
+from pipeline.settings import parse_params
 from tests.project import environment
 from tests.servers import run_queue
 

@@ -21,7 +21,8 @@ from pipeline.io import InputError
 from pipeline.learning import kalman_net
 from pipeline.learning.filter_training import DescentConfig, descend
 from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
-from pipeline.params import ParamError, parse_params
+from pipeline.params import ParamError
+from pipeline.settings import parse_params
 from pipeline.stages import kalman_net_stage
 from tests.test_classical import plots_table, radar_plots, random_flight, realistic_rows
 from tests.test_torch_filters import tensors

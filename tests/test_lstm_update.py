@@ -13,7 +13,8 @@ from pipeline.filters import motion_models
 from pipeline.filters.torch_filters import SequenceBatch
 from pipeline.learning import lstm_update
 from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
-from pipeline.params import ParamError, parse_params
+from pipeline.params import ParamError
+from pipeline.settings import parse_params
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -17,7 +17,7 @@ from pipeline.bench.evaluation import run_management
 from pipeline.bench.tracker_metrics import markdown_table
 from pipeline.filters.classical_filters import FilterSettings
 from pipeline.geometry import geodesy
-from pipeline.params import parse_params
+from pipeline.settings import parse_params
 from pipeline.tracker import registry
 from pipeline.tracker.m_of_n import CONFIRMED, MOfN
 from pipeline.tracker.management import ThesisWeights

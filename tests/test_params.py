@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.params import STRATEGIES, ParamError, load_params, parse_params
+from pipeline.params import STRATEGIES, ParamError
+from pipeline.settings import load_params, parse_params
 from pipeline.tracker import registry
 from tests.project import run_pipeline, write_params
 

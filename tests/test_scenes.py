@@ -10,7 +10,8 @@ import pyarrow.compute as pc
 import pytest
 
 from pipeline import cli
-from pipeline.params import ParamError, parse_params
+from pipeline.params import ParamError
+from pipeline.settings import parse_params
 from pipeline.simulation import scenes
 from tests import tracker_fixtures as tf
 from tests.project import write_params

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 
 from pipeline.bench.tracker_metrics import METRICS, RouteCounts, route_counts, summarise
-from pipeline.params import parse_params
+from pipeline.settings import parse_params
 from pipeline.reports import comparison_tables
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.tracks import LiveTracks

@@ -9,7 +9,7 @@ from pipeline.learning import validation_split, windows
 def test_validation_segments_share_no_plot_with_the_hold_out_or_the_training_material(tiny_pipeline):
     from pipeline import io
     from pipeline.learning import materials
-    from pipeline.params import load_params
+    from pipeline.settings import load_params
     from pipeline.simulation import simulate
     params = load_params(tiny_pipeline / "params.yaml")
     plots = io.read_parquet(tiny_pipeline / "data" / "simulated" / "train" / "plots.parquet", simulate.PLOT_SCHEMA)

@@ -11,7 +11,8 @@ import mlflow
 import pytest
 import yaml
 
-from pipeline.params import ParamsLoader, parse_params
+from pipeline.params import ParamsLoader
+from pipeline.settings import parse_params
 from tests.project import REPOSITORY, copy_repository, environment, tiny_params_tree, write_params
 
 MARKER = "<!-- walkthrough -->"

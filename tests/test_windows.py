@@ -19,7 +19,8 @@ from pipeline import io
 from pipeline.geometry import geodesy
 from pipeline.learning import materials, windows
 from pipeline.learning.scaling import WindowScaler
-from pipeline.params import Params, parse_params
+from pipeline.params import Params
+from pipeline.settings import parse_params
 from pipeline.simulation import simulate
 from tests.project import run_pipeline, tiny_params_tree, write_params
 

@@ -29,7 +29,8 @@ from pipeline.learning import materials, model_eval
 from pipeline.learning.model_eval import output_scaler
 from pipeline.learning.model_store import LoadedModel, load_model, save_model
 from pipeline.learning.training import TrainingConfig, train
-from pipeline.params import Params, Radar, parse_params
+from pipeline.params import Params, Radar
+from pipeline.settings import parse_params
 from pipeline.recordings.plot_table import NO_SCENARIO, NO_TARGET, PLOT_INPUT_SCHEMA, RADAR_INPUT_SCHEMA, Plots
 from pipeline.stages.train_stage import network_config
 from pipeline.stages.tune_stage import start_settings

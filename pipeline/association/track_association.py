@@ -29,10 +29,18 @@ from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
 from pipeline.io import InputError
+from pipeline.params import ParamError, Params
 
 STATE_SIZES = (4, 6)   # [e, n, ve, vn] or [e, n, u, ve, vn, vu]
 METHODS = ("statistical", "double_threshold", "bias_robust", "network")  # every way to associate two radars' tracks
 FORBIDDEN = 1e12       # assignment cost of a gated-out pair (never chosen while a gated pair is left)
+
+
+def check_params(params: Params) -> None:
+    """The fusion stage's association methods: distinct names of METHODS, at least one (ParamError)."""
+    methods = list(params.fusion.methods)
+    if not methods or not set(methods) <= set(METHODS) or len(set(methods)) != len(methods):
+        raise ParamError(f"fusion.methods = {methods!r}: must list distinct methods of {METHODS}")
 
 
 class TrackInputError(InputError):

@@ -17,8 +17,16 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from pipeline.association.track_association import TrackInputError, check_pair_of_radars
+from pipeline.params import ParamError, Params
 
 CRITERIA = ("trace", "determinant")
+
+
+def check_params(params: Params) -> None:
+    """`associate.fusion_criterion`: one of CRITERIA (ParamError)."""
+    if params.associate.fusion_criterion not in CRITERIA:
+        raise ParamError(f"associate.fusion_criterion = {params.associate.fusion_criterion!r}: must be one of "
+                         f"{CRITERIA}")
 
 
 def _size(covariance: np.ndarray, criterion: str) -> float:

@@ -25,8 +25,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
+from pipeline.params import ParamError
+
 if TYPE_CHECKING:
-    from pipeline.params import TrackerParams
+    from pipeline.params import Params, TrackerParams
     from pipeline.tracker.assigner import Assigner
     from pipeline.tracker.estimator import Estimator
     from pipeline.tracker.gate import Gate
@@ -198,6 +200,28 @@ REFERENCES = tuple(name for name, method in METHODS.items() if method.family == 
 # the trackers whose updates carry a position covariance (what track-to-track association and fusion read): all
 # but the thesis's networks, whose estimator (`network_estimator`, the predictor and filter) gives none
 COVARIANCE_TRACKERS = tuple(name for name in TRACKERS if not set(METHODS[name].needs) & set(NETWORKS))
+EVALUATION_REFERENCES = ("plots", *REFERENCES)  # evaluate.references: raw target plots, the registry's references
+
+
+def check_params(params: "Params") -> None:
+    """The names params gives that this registry owns (ParamError naming the key and the value): the
+    tracker's management rule, every evaluation run's method and rule, the evaluation's references,
+    and the fusion stage's local tracker, which must give covariances."""
+    if params.tracker.management not in MANAGEMENT:
+        raise ParamError(f"tracker.management = {params.tracker.management!r}: must be one of {MANAGEMENT}")
+    for index, run in enumerate(params.evaluate.runs):
+        if run.method not in TRACKERS:
+            raise ParamError(f"evaluate.runs[{index}].method = {run.method!r}: must be one of {TRACKERS}")
+        if run.management is not None and run.management not in MANAGEMENT:
+            raise ParamError(f"evaluate.runs[{index}].management = {run.management!r}: must be one of {MANAGEMENT}")
+    references = list(params.evaluate.references)
+    if any(name not in EVALUATION_REFERENCES for name in references):
+        raise ParamError(f"evaluate.references = {references!r}: must list some of {EVALUATION_REFERENCES}")
+    if params.fusion.tracker not in COVARIANCE_TRACKERS:  # a network's tracks would stop the stage after a scene
+        without = [name for name in TRACKERS if name not in COVARIANCE_TRACKERS]
+        raise ParamError(f"fusion.tracker = {params.fusion.tracker!r}: must be one of {COVARIANCE_TRACKERS} "
+                         f"(association and fusion read each track's covariance; the networks of "
+                         f"{', '.join(without)} give none)")
 
 
 def method(name: str) -> Method:
