@@ -8,7 +8,7 @@ each stage comes after what it depends on), each with `dvc repro --single-item -
 reports) and whose inputs come out byte-identical would otherwise be skipped. Each stage's wall time includes DVC's own start and hashing, so the
 sum is what a user waits for `dvc repro`. Peak memory is the largest resident set of the
 processes of that stage (`os.wait4`: DVC and the stage's Python). The result goes to
-`reports/pipeline_speed.json` (atomically), and the README's Speed table is regenerated
+`reports/pipeline_speed.json` (atomically), and the Speed table of docs/speed.md is regenerated
 from it with `python -m pipeline readme`.
 
     python benchmarks/bench_pipeline.py                      # default params.yaml, ~10 minutes
@@ -60,7 +60,7 @@ def main() -> None:
     parser.add_argument("--params", type=Path, help="params file to run with (default: the repository's params.yaml)")
     parser.add_argument("--out", type=Path, default=REPOSITORY / "reports" / "pipeline_speed.json",
                         help="where the JSON goes (default: %(default)s)")
-    parser.add_argument("--no-readme", action="store_true", help="do not regenerate the README from the result")
+    parser.add_argument("--no-readme", action="store_true", help="do not regenerate docs/speed.md from the result")
     parser.add_argument("--keep", action="store_true", help="keep the temporary copy and print where it is")
     args = parser.parse_args()
 
@@ -97,7 +97,8 @@ def main() -> None:
         print(f"fresh dvc repro: {total / 60:.1f} min; written to {args.out}")
         if not args.no_readme:
             subprocess.run([sys.executable, "-m", "pipeline", "readme", "--readme", str(REPOSITORY / "README.md"),
-                            "--reports", str(REPOSITORY / "reports")], cwd=REPOSITORY, check=True)
+                            "--docs", str(REPOSITORY / "docs"), "--reports", str(REPOSITORY / "reports"),
+                            "--package", str(REPOSITORY / "pipeline")], cwd=REPOSITORY, check=True)
     finally:
         if args.keep:
             print(f"the copy is in {folder}")

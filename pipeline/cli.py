@@ -125,10 +125,12 @@ def _asterix_export(args: argparse.Namespace) -> None:
 
 
 def _readme(args: argparse.Namespace) -> int:
-    from pipeline.reports.readme import update_readme
-    changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
+    from pipeline.reports.readme import update_documents
+    changed = update_documents(Path(args.readme), Path(args.docs), Path(args.reports), Path(args.package),
+                               check=args.check)
     if args.check and changed:
-        log.error("%s: generated tables are out of date; run `python -m pipeline readme`", args.readme)
+        log.error("%s: generated sections are out of date; run `python -m pipeline readme`",
+                  ", ".join(map(str, changed)))
         return 1
     return 0
 
@@ -140,6 +142,8 @@ FOLDERS = {  # option -> (default, what it is)
     "windows": ("data/windows", "windows folder"),
     "models": ("models", "models folder"),
     "reports": ("reports", "reports folder"),
+    "docs": ("docs", "documentation folder (results.md, speed.md, architecture.md hold generated sections)"),
+    "package": ("pipeline", "the package whose layout docs/architecture.md lists"),
 }
 
 # name -> (handler, summary, example, input/output options; "out" is given as ("out", default))
@@ -220,8 +224,9 @@ COMMANDS = {
                        "python -m pipeline asterix-export --plots data/simulated/test/plots.parquet "
                        "--radar data/simulated/test/radar.parquet --scenario 0 --out scenario_0.ast",
                        ["export"]),
-    "readme": (_readme, "Regenerate the README's results tables from reports/.",
-               "python -m pipeline readme --check", ["readme", "reports", "check"]),
+    "readme": (_readme, "Regenerate the generated sections of the README and docs/: the results from reports/, "
+               "the layout from the package's folders and docstrings.",
+               "python -m pipeline readme --check", ["readme", "docs", "reports", "package", "check"]),
 }
 
 
@@ -291,7 +296,7 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
     elif option == "check":
         command.add_argument("--check", action="store_true",
-                             help="do not write; exit 1 if the README's tables are out of date")
+                             help="do not write; exit 1 if a generated section of the README or docs/ is out of date")
     else:
         default, what = FOLDERS[option]
         command.add_argument(f"--{option}", default=default, help=f"{what} (default: %(default)s)")

@@ -52,7 +52,7 @@ def dvc(repository: Path, *arguments: str, tracking_uri: str | None = None) -> s
     return result.stdout
 
 
-SWEEP = "training.predictor.hidden=[16,16],[64,64]"  # the README's sweep (of train_predictor alone)
+SWEEP = "training.predictor.hidden=[16,16],[64,64]"  # docs/networks.md's sweep (of train_predictor alone)
 QUEUE_TIMEOUT_S = 600
 
 
@@ -67,7 +67,7 @@ def _dvc_environment(tracking_uri: str | None) -> dict[str, str]:
 
 def repro_tiny_pipeline(destination: Path) -> Path:
     """A fresh copy of the repository with tiny params, `dvc repro evaluate` run in it, then the
-    README's sweep of the predictor's layers queued and run two at a time.
+    sweep of docs/networks.md over the predictor's layers queued and run two at a time.
 
     That runs every training stage, `tune_kalman` and `evaluate`, each logging one MLflow run to
     the copy's `mlflow.db`, and two more `train_predictor` runs, one per DVC experiment of the

@@ -1,5 +1,5 @@
-"""The README's worked example of adding an estimator, run as written: its module and its registry
-entry, taken from the README's code blocks, give a method that tracks a straight target."""
+"""The worked example of adding an estimator (docs/architecture.md), run as written: its module and its
+registry entry, taken from the page's code blocks, give a method that tracks a straight target."""
 
 from __future__ import annotations
 
@@ -16,24 +16,26 @@ from pipeline.tracker.run import track
 from tests import tracker_fixtures as tf
 from tests.project import REPOSITORY
 
+PAGE = REPOSITORY / "docs" / "architecture.md"
+
 
 def example(marker: str) -> str:
-    """The Python block after `<!-- example: marker -->` in the README."""
-    after = (REPOSITORY / "README.md").read_text().split(f"<!-- example: {marker} -->", 1)[1]
+    """The Python block after `<!-- example: marker -->` in docs/architecture.md."""
+    after = PAGE.read_text().split(f"<!-- example: {marker} -->", 1)[1]
     return re.search(r"```python\n(.*?)```", after, re.S).group(1)
 
 
-def test_the_readme_alpha_beta_example_is_one_module_and_one_entry_and_tracks(monkeypatch, tmp_path: Path):
+def test_the_alpha_beta_example_is_one_module_and_one_entry_and_tracks(monkeypatch, tmp_path: Path):
     """The example's module, importable as pipeline.tracker.alpha_beta, and its registry entry, added
     to the registry: loading its needs reads no file, and on 20 plots of a straight 216 m/s flight it
     gives one track holding them all, confirmed from the fourth plot, within 100 m of the flight from
     the tenth plot on."""
     module = types.ModuleType("pipeline.tracker.alpha_beta")
-    exec(compile(example("estimator module"), "README: pipeline/tracker/alpha_beta.py", "exec"), module.__dict__)
+    exec(compile(example("estimator module"), "docs/architecture.md: pipeline/tracker/alpha_beta.py", "exec"), module.__dict__)
     monkeypatch.setitem(sys.modules, "pipeline.tracker.alpha_beta", module)
     definition, entry = example("registry entry").strip().rsplit("\n\n", 1)
     namespace = dict(vars(registry))
-    exec(compile(definition, "README: registry entry", "exec"), namespace)
+    exec(compile(definition, "docs/architecture.md: registry entry", "exec"), namespace)
     method = eval(entry, namespace)
     monkeypatch.setitem(registry.METHODS, method.name, method)
 

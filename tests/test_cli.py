@@ -155,7 +155,8 @@ def test_next_write_keeps_the_temporary_of_a_live_writer(tmp_path: Path) -> None
         writer.wait()
 
 
-def test_readme_tables_match_reports() -> None:
-    """The README's results section is what `python -m pipeline readme` generates from reports/."""
+def test_generated_sections_are_current() -> None:
+    """Every generated section (the README's headline, docs/results.md, docs/speed.md, the layout in
+    docs/architecture.md) is what `python -m pipeline readme` generates from reports/ and the package."""
     result = run_pipeline("readme", "--check")
     assert result.returncode == 0, result.stderr

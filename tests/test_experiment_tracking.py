@@ -161,7 +161,7 @@ def test_an_experiment_dvc_runs_in_a_temporary_copy_logs_to_the_repositorys_stor
 
 
 def test_two_queued_experiments_run_two_at_a_time_both_log_to_the_repositorys_store(tmp_path: Path) -> None:
-    """The README's sweep: `dvc exp run --queue -S 'learning_rate=0.002,0.003'` queues two
+    """The sweep of docs/networks.md: `dvc exp run --queue -S 'learning_rate=0.002,0.003'` queues two
     experiments, `dvc queue start -j 2` runs them in two workers at once, each in its own
     temporary copy, on a store neither has created yet: both runs are in the repository's store,
     each with its params."""

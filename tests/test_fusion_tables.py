@@ -1,4 +1,4 @@
-"""The fusion section of the comparison report and README: every picture best GOSPA first with its ratio to the
+"""The fusion section of the comparison report and docs/results.md: every picture best GOSPA first with its ratio to the
 better radar, each method's pair counts, and the bias sweep's cells."""
 
 from __future__ import annotations

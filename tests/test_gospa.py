@@ -234,7 +234,7 @@ def test_run_metrics_gospa_parts_add_up_to_gospa():
 
 def test_gospa_table_best_first_and_none_for_reports_before_gospa():
     """The compare report's GOSPA table: best GOSPA first, the parts in metres, n/a where a metric is
-    undefined; no table from reports written before GOSPA (the README keeps its other tables)."""
+    undefined; no table from reports written before GOSPA (docs/results.md keeps its other tables)."""
     runs = {"via_4000": {"GOSPA": 300.4, "GOSPA_localisation": 100.0, "GOSPA_missed": 150.2, "GOSPA_false": 50.2,
                          "track_switches": 3, "tracks_per_truth": 1.5, "track_purity": 0.9876},
             "oracle_reference": {"GOSPA": 120.0, "GOSPA_localisation": 60.0, "GOSPA_missed": 60.0, "GOSPA_false": 0.0,

@@ -1,6 +1,6 @@
 """A team's MLflow server backed by PostgreSQL: the pipeline reaches it through MLFLOW_TRACKING_URI alone.
 
-The README's team set-up, end to end: a real PostgreSQL server, `mlflow server` over it
+The team set-up of docs/team.md, end to end: a real PostgreSQL server, `mlflow server` over it
 with artifacts in a folder of its own, and a training stage and `evaluate` run by DVC in a
 copy of the repository whose params still say `sqlite:///mlflow.db`. Nothing may land in
 that local store.

@@ -1,11 +1,11 @@
 """The MLflow UI in a real browser, over the runs a tiny `dvc repro` and a queued sweep log to the
 default SQLite store.
 
-What a user does after `make pipeline` and the README's sweep: start `mlflow server` over
+What a user does after `make pipeline` and the sweep of docs/networks.md: start `mlflow server` over
 `mlflow.db`, open the address the README gives (the experiment's runs table), see one run per
 stage, open a run and read its metrics, open the Models page and find
 the three networks. The MLflow UI is a React app that renders after the page loads, so every
-check is a Playwright `expect`, which waits for the element. The screenshots the README shows
+check is a Playwright `expect`, which waits for the element. The screenshots docs/networks.md and docs/team.md show
 (`reports/mlflow_ui.png`, `reports/mlflow_ui_run.png`, `reports/mlflow_ui_models.png`) are
 written only once the checks have seen what they show. What the runs record beyond the UI (the
 model versions an evaluate run used, the span of a run) is checked through the tracking API.

@@ -62,13 +62,13 @@ def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
     assert {"train_filter", "train_predictor", "train_autoencoder", "evaluate"} <= names
 
 
-def test_readme_thesis_schedule_command_sets_the_thesis_schedule(params_tree) -> None:
-    """The README's one command for the thesis's schedule, applied as `dvc exp run -S` applies
-    it, gives valid params with the thesis's epochs, batches and learning rate, and neither
-    early stopping nor learning-rate decay."""
-    readme = (REPOSITORY / "README.md").read_text()
-    match = re.search(r"<!-- thesis-schedule -->\s*```bash\n(.*?)\n```", readme, re.DOTALL)
-    assert match, "README.md has no ```bash block after <!-- thesis-schedule -->"
+def test_thesis_schedule_command_sets_the_thesis_schedule(params_tree) -> None:
+    """The one command for the thesis's schedule (docs/networks.md, "Training schedule"), applied as
+    `dvc exp run -S` applies it, gives valid params with the thesis's epochs, batches and learning
+    rate, and neither early stopping nor learning-rate decay."""
+    page = (REPOSITORY / "docs" / "networks.md").read_text()
+    match = re.search(r"<!-- thesis-schedule -->\s*```bash\n(.*?)\n```", page, re.DOTALL)
+    assert match, "docs/networks.md has no ```bash block after <!-- thesis-schedule -->"
     command = match.group(1).replace("\\\n", " ")
     assert command.split()[:3] == ["dvc", "exp", "run"]
     for dotted, value in re.findall(r"-S (\S+)=(\S+)", command):

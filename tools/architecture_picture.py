@@ -1,4 +1,4 @@
-"""Draw the README's architecture picture: a plot's path from its file to a confirmed track.
+"""Draw the architecture picture of docs/architecture.md: a plot's path from its file to a confirmed track.
 
     python tools/architecture_picture.py [--out reports/architecture.png]
 

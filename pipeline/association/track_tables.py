@@ -1,6 +1,6 @@
 """A user's track table (what `python -m pipeline track` writes) read for track-to-track association, and checked.
 
-The table is in the track-update schema (`pipeline.tracker.recording.TRACK_SCHEMA`, README "Tracking a recording"): one
+The table is in the track-update schema (`pipeline.tracker.recording.TRACK_SCHEMA`, docs/tracking-a-recording.md): one
 row per update, the position in WGS-84 ECEF and geodetically, the range from the plot's radar, the status
 and the position's ECEF covariance (`covariance_*_m2`). Only confirmed updates are kept: a tentative track
 is as likely a false plot as an aircraft. The radar description beside it (`plot_table.RADAR_FILE_SCHEMA`,

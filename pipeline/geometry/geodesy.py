@@ -5,7 +5,7 @@ spherical-earth elevation (eq. 4.2) that uses the meridian radius at the radar f
 whole coverage. That is kept exactly as written, because the networks are meant to learn
 its residual error; the exact conversions of pymap3d are used for the truth (routes and
 true measurements) so that the approximation's error is visible and bounded
-(see tests/test_geodesy.py and the README).
+(see tests/test_geodesy.py and docs/data.md).
 
 Every function here computes with `pipeline.geometry.strict_math` (fdlibm's sin, cos, atan, atan2, asin in
 IEEE arithmetic) instead of NumPy's or pymap3d's, so that the data stages write the same bytes on

@@ -1,7 +1,7 @@
 """The comparison's tables and sentences in Markdown, from the numbers `compare` gathers
 (`reports/comparison.json`): the tracker table, continuity, GOSPA, the scenes, the sites, the
 hold-out and tuning tables, and the plain-sentence verdict. The `compare` stage writes them to
-`reports/comparison.md`, the `readme` stage into the README.
+`reports/comparison.md`, the `readme` stage into docs/results.md (and its verdict into the README).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Markdown tables of the fusion stage's report (`reports/fusion.json`, `radar_fusion` and `fusion_bias_sweep`) for
-the comparison report and the README: the fused picture against each radar alone and the oracle association, each
+the comparison report and docs/results.md: the fused picture against each radar alone and the oracle association, each
 method's association in the fusion scenes, and association against radar 2's bias.
 """
 

@@ -26,7 +26,7 @@ memory does not grow with a track's age (`pipeline.tracker.tracks`). A track's p
   scan's updates so; a track updated by it and then deleted may see its slot `start`ed again.
 
 A new estimator is one module with a class offering these, and one registry entry
-(`pipeline.tracker.registry`); README "Architecture" has the worked example.
+(`pipeline.tracker.registry`); docs/architecture.md has the worked example.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Track updates as a table: the track-update schema every tracked recording is written in, and the
 tracker run over a recording's scenarios into that table.
 
-One row per track update (TRACK_SCHEMA; README "Tracking a recording"): the plot's radar, the track,
+One row per track update (TRACK_SCHEMA; docs/tracking-a-recording.md): the plot's radar, the track,
 its ECEF and geodetic position, the range from the plot's radar, the management weight and status,
 how the plot was associated, and the position's ECEF covariance (upper triangle, null for an
 estimator that gives none). `track` writes it, `associate` and the two-radar bench read it

@@ -11,7 +11,7 @@ params, the window (metres: the VIA window, the young-track radius of every meth
 
 Params validation, the evaluate and compare stages, the tables and `track` read the names from
 here; nothing else lists methods. Adding a method is one entry here (and the modules of its
-parts); README "Architecture" has a worked example.
+parts); docs/architecture.md has a worked example.
 
 Track management is composed the same way: `MANAGEMENT` names the rules (`thesis`, the default
 of every method, and `m_of_n`), and `compose(..., management_rule=...)` runs any method under either.
