@@ -23,27 +23,27 @@ log = logging.getLogger("pipeline")
 
 
 def _routes(args: argparse.Namespace) -> None:
-    from pipeline.stages.data_stages import run_routes
+    from pipeline.stages.routes_stage import run_routes
     run_routes(load_params(args.params), Path(args.out))
 
 
 def _simulate(args: argparse.Namespace) -> None:
-    from pipeline.stages.data_stages import run_simulate
+    from pipeline.stages.simulate_stage import run_simulate
     run_simulate(load_params(args.params), Path(args.routes), Path(args.out))
 
 
 def _scenes(args: argparse.Namespace) -> None:
-    from pipeline.stages.data_stages import run_scenes
+    from pipeline.stages.scenes_stage import run_scenes
     run_scenes(load_params(args.params), Path(args.out))
 
 
 def _data_report(args: argparse.Namespace) -> None:
-    from pipeline.stages.data_stages import run_data_report
+    from pipeline.stages.data_report_stage import run_data_report
     run_data_report(load_params(args.params), Path(args.routes), Path(args.simulated), Path(args.out))
 
 
 def _windows(args: argparse.Namespace) -> None:
-    from pipeline.stages.data_stages import run_windows
+    from pipeline.stages.windows_stage import run_windows
     run_windows(load_params(args.params), Path(args.simulated), Path(args.out), Path(args.reports))
 
 

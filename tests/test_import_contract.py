@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import yaml
+
 from tests.project import REPOSITORY
 
 LINT_IMPORTS = Path(sys.executable).parent / "lint-imports"
@@ -36,3 +38,14 @@ def test_a_lower_wing_importing_a_higher_one_breaks_the_contract(tmp_path: Path)
     assert result.returncode != 0
     assert "pipeline.tracker.upward -> pipeline.bench.gospa" in result.stdout
     assert "No cycles are allowed in pipeline" in result.stdout
+
+
+def test_every_stage_lists_the_code_it_runs_as_its_deps() -> None:
+    """dvc.yaml's `pipeline/...` deps of each stage are exactly the modules its command imports,
+    directly or not (`tools/stage_code_deps.py`): a module a stage runs but does not list would leave
+    `dvc repro` calling a stale output current. `python tools/stage_code_deps.py --write` mends it."""
+    from tools import stage_code_deps
+
+    stages = yaml.safe_load((REPOSITORY / "dvc.yaml").read_text())["stages"]
+    wanted = stage_code_deps.stage_code_deps(stages, (REPOSITORY / "pipeline" / "cli.py").read_text())
+    assert stage_code_deps.differences(stages, wanted) == {}

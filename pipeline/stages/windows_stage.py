@@ -1,4 +1,4 @@
-"""The DVC stages: read inputs, call the modules that do the work, write outputs atomically.
+"""Stage `windows`: the networks' balanced, scaled training windows, their calibration material and the hold-out.
 
 Each stage computes all its results before writing any file, so a failure leaves the
 previous outputs (or none) rather than a mix of new and old.
@@ -16,66 +16,10 @@ import pyarrow.compute  # noqa: F401  (pa.compute)
 from pipeline import io
 from pipeline.learning import materials, windows
 from pipeline.params import Params
-from pipeline.progress import progress_logger
 from pipeline.reports import figures
-from pipeline.simulation import routes, scenes, simulate
-from pipeline.simulation.data_summary import summarise_split
+from pipeline.simulation import simulate
 
 log = logging.getLogger("pipeline")
-
-
-def run_routes(params: Params, out_dir: Path) -> None:
-    """Stage `routes`: one Parquet file of truth per split."""
-    tables = {split.name: routes.generate_split(params, split, progress_logger(f"routes {split.name}"))
-              for split in params.routes.splits}
-    for name, table in tables.items():
-        io.write_parquet(table, out_dir / f"{name}.parquet")
-        log.info("routes %s: %d routes, %d truth rows -> %s", name, len(set(table.column("route_id").to_pylist())),
-                 table.num_rows, out_dir / f"{name}.parquet")
-
-
-def run_simulate(params: Params, routes_dir: Path, out_dir: Path) -> None:
-    """Stage `simulate`: plots, per-scan truth and the radar description per split."""
-    results = {}
-    for split in params.routes.splits:
-        table = io.read_parquet(routes_dir / f"{split.name}.parquet", routes.ROUTE_SCHEMA)
-        results[split.name] = simulate.simulate_split(params, split, table, progress_logger(f"simulate {split.name}"))
-    description = simulate.radar_description(params)
-    for name, (plots, truth) in results.items():
-        simulate.write_split(plots, truth, description, out_dir / name)
-        targets = sum(plots.column("is_target").to_pylist())
-        log.info("simulate %s: %d target plots, %d false plots -> %s", name, targets, plots.num_rows - targets,
-                 out_dir / name)
-
-
-def run_scenes(params: Params, out_dir: Path) -> None:
-    """Stage `scenes`: the multi-target scenes' routes, plots, per-scan truth and radar description."""
-    route_table, plots, truth = scenes.generate_scenes(params, progress_logger("scenes"))
-    io.write_parquet(route_table, out_dir / "routes.parquet")
-    simulate.write_split(plots, truth, simulate.radar_description(params), out_dir)
-    targets = sum(plots.column("is_target").to_pylist())
-    log.info("scenes: %d scenes of %d aircraft, %d target plots, %d false plots -> %s", params.scenes.count,
-             params.scenes.aircraft, targets, plots.num_rows - targets, out_dir)
-
-
-def run_data_report(params: Params, routes_dir: Path, simulated_dir: Path, reports_dir: Path) -> None:
-    """Stage `data_report`: metrics of the simulated data and pictures to check it by eye."""
-    summary, loaded = {}, {}
-    for split in params.routes.splits:
-        route_table = io.read_parquet(routes_dir / f"{split.name}.parquet", routes.ROUTE_SCHEMA)
-        plots = io.read_parquet(simulated_dir / split.name / "plots.parquet", simulate.PLOT_SCHEMA)
-        truth = io.read_parquet(simulated_dir / split.name / "truth.parquet", simulate.TRUTH_SCHEMA)
-        summary[split.name] = summarise_split(route_table, plots, truth)
-        loaded[split.name] = (route_table, plots, truth)
-    first = params.routes.splits[0].name
-    route_table, plots, truth = loaded[first]
-    routes_png = figures.route_examples(route_table, plots, params, params.example_routes)
-    radar_png = figures.radar_statistics(plots, truth)
-    io.write_json(summary, reports_dir / "data.json")
-    io.write_bytes(routes_png, reports_dir / "data_routes.png")
-    io.write_bytes(radar_png, reports_dir / "data_radar.png")
-    log.info("data report: %s, %s, %s", reports_dir / "data.json", reports_dir / "data_routes.png",
-             reports_dir / "data_radar.png")
 
 
 def run_windows(params: Params, simulated_dir: Path, out_dir: Path, reports_dir: Path) -> None:
