@@ -15,7 +15,7 @@ from tests.project import REPOSITORY
 
 README = REPOSITORY / "README.md"
 PAGES = sorted((REPOSITORY / "docs").glob("*.md"))
-PENDING = {REPOSITORY / "docs" / "params.md"}  # the params reference, generated on its own branch (issue 28, item 2)
+PENDING = {REPOSITORY / "docs" / "params.md"}  # the params reference, written on its own branch (issue 28, item 2)
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 
 
@@ -47,8 +47,8 @@ def test_every_relative_link_and_picture_is_found(page: Path) -> None:
             continue  # https:, mailto:
         name, _, fragment = target.partition("#")
         linked = (page.parent / name).resolve() if name else page
-        if linked in PENDING:
-            continue
+        if linked in PENDING and not linked.exists():
+            continue  # checked once it is merged
         assert linked.exists(), f"{page.name}: {target} is not there"
         if fragment:
             assert fragment in anchors(linked), f"{page.name}: {target} names no heading of {linked.name}"
@@ -115,10 +115,10 @@ def test_the_generated_sections_are_written_where_they_are_held(tmp_path: Path) 
     the pictures' links are relative to the file that shows them."""
     (tmp_path / "docs").mkdir()
     shutil.copytree(REPOSITORY / "reports", tmp_path / "reports", ignore=shutil.ignore_patterns("*.png"))
-    empty = {README: (readme.HEADLINE_START, readme.HEADLINE_END)}
-    for page, markers in (("results.md", (readme.START, readme.END)), ("speed.md", (readme.SPEED_START, readme.SPEED_END)),
-                          ("architecture.md", (readme.LAYOUT_START, readme.LAYOUT_END))):
-        empty[REPOSITORY / "docs" / page] = markers
+    docs = REPOSITORY / "docs"
+    empty = {README: (readme.HEADLINE_START, readme.HEADLINE_END), docs / "results.md": (readme.START, readme.END),
+             docs / "speed.md": (readme.SPEED_START, readme.SPEED_END),
+             docs / "architecture.md": (readme.LAYOUT_START, readme.LAYOUT_END)}
     for source, (start, end) in empty.items():
         text = source.read_text()
         head, rest = text.split(start)
