@@ -75,7 +75,7 @@ def main() -> None:
     elapsed, cpu = tracked("imm", models)
     print(f"tracker   imm              {plots} plots: {plots / elapsed:9,.0f} plots/s ({plots / cpu:,.0f} per CPU s)")
     for samples in args.samples:
-        estimator = with_samples(models.lstm_update, samples)
+        estimator = with_samples(models["lstm_update"], samples)
         elapsed, cpu = tracked("lstm_update", replace(models, lstm_update=estimator))
         print(f"tracker   lstm_update  N={samples:<3d} {plots} plots: {plots / elapsed:9,.0f} plots/s "
               f"({plots / cpu:,.0f} per CPU s)")

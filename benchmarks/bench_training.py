@@ -29,9 +29,8 @@ from pathlib import Path
 import torch
 
 from pipeline.learning.networks import build_network
-from pipeline.learning.training import train
+from pipeline.learning.training import network_config, train, training_config, training_pairs
 from pipeline.settings import load_params
-from pipeline.stages.train_stage import network_config, training_config, training_pairs
 
 
 def per_step(step: callable, steps: int) -> float:

@@ -17,6 +17,7 @@ from pipeline.learning.experiment_tracking import TrackingError
 from pipeline.params import ParamError
 from pipeline.settings import load_params
 from pipeline.simulation.routes import RouteGenerationError
+from pipeline.stages.train_stage import TRAINED
 from pipeline.tracker.registry import CLASSICAL, MANAGEMENT, METHODS, TRACKERS, UnknownMethod
 
 log = logging.getLogger("pipeline")
@@ -48,8 +49,11 @@ def _windows(args: argparse.Namespace) -> None:
 
 
 def _train(args: argparse.Namespace) -> None:
+    from pipeline.learning.recipe import Folders
     from pipeline.stages.train_stage import run_train
-    run_train(load_params(args.params), args.kind, Path(args.windows), Path(args.models), Path(args.reports))
+    given = {name: Path(getattr(args, name)) for name in ("simulated", "windows", "models", "reports")
+             if hasattr(args, name)}
+    run_train(load_params(args.params), args.kind, Folders(**given))
 
 
 def _models_report(args: argparse.Namespace) -> None:
@@ -60,23 +64,6 @@ def _models_report(args: argparse.Namespace) -> None:
 def _tune_kalman(args: argparse.Namespace) -> None:
     from pipeline.stages.tune_stage import run_tune
     run_tune(load_params(args.params), Path(args.simulated), Path(args.models), Path(args.reports))
-
-
-def _train_kalman_net(args: argparse.Namespace) -> None:
-    from pipeline.stages.kalman_net_stage import run_train_kalman_net
-    run_train_kalman_net(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
-                         Path(args.reports))
-
-
-def _train_association(args: argparse.Namespace) -> None:
-    from pipeline.stages.association_stage import run_train_association
-    run_train_association(load_params(args.params), Path(args.models), Path(args.reports))
-
-
-def _train_lstm_update(args: argparse.Namespace) -> None:
-    from pipeline.stages.lstm_update_stage import run_train_lstm_update
-    run_train_lstm_update(load_params(args.params), Path(args.simulated), Path(args.windows), Path(args.models),
-                          Path(args.reports))
 
 
 def _fusion(args: argparse.Namespace) -> None:
@@ -146,7 +133,8 @@ FOLDERS = {  # option -> (default, what it is)
     "package": ("pipeline", "the package whose layout docs/architecture.md lists"),
 }
 
-# name -> (handler, summary, example, input/output options; "out" is given as ("out", default))
+# name -> (handler, summary, example, input/output options; "out" is given as ("out", default), the piece a
+# command trains as ("kind", name))
 COMMANDS = {
     "routes": (_routes, "Simulate aircraft routes (truth) for every split.",
                "python -m pipeline routes --params params.yaml --out data/routes",
@@ -163,31 +151,32 @@ COMMANDS = {
     "windows": (_windows, "Cut the simulated plots into balanced, scaled training windows and a hold-out.",
                 "python -m pipeline windows --simulated data/simulated --out data/windows --reports reports",
                 ["params", "simulated", ("out", "data/windows"), "reports"]),
-    "train": (_train, "Train one network (filter, predictor or autoencoder), evaluate it, log an MLflow run.",
+    "train": (_train, "Train one piece (the thesis's filter, predictor or autoencoder network, or any trained piece: "
+              f"{', '.join(TRAINED)}), evaluate it, log an MLflow run.",
               "python -m pipeline train --kind predictor --windows data/windows --models models --reports reports",
-              ["params", "kind", "windows", "models", "reports"]),
+              ["params", "kind", "simulated", "windows", "models", "reports"]),
     "models-report": (_models_report, "Merge the networks' hold-out metrics into reports/models.json.",
                       "python -m pipeline models-report --reports reports", ["reports"]),
     "tune-kalman": (_tune_kalman, "Tune the classical CV, CA and IMM filters on a split's target plots "
                     "(scipy Nelder-Mead); writes models/kalman_tuned.json.",
                     "python -m pipeline tune-kalman --simulated data/simulated --models models --reports reports",
                     ["params", "simulated", "models", "reports"]),
-    "train-kalman-net": (_train_kalman_net, "Train the network-scaled Kalman filter and the gradient-tuned CV, CA, "
+    "train-kalman-net": (_train, "Train the network-scaled Kalman filter and the gradient-tuned CV, CA, "
                          "Singer and IMM filters on a split's target plots (Lightning, one MLflow run).",
                          "python -m pipeline train-kalman-net --simulated data/simulated --windows data/windows "
                          "--models models --reports reports",
-                         ["params", "simulated", "windows", "models", "reports"]),
-    "train-association": (_train_association, "Train the seed's track-to-track association network on freshly "
+                         ["params", ("kind", "kalman_net"), "simulated", "windows", "models", "reports"]),
+    "train-association": (_train, "Train the seed's track-to-track association network on freshly "
                           "simulated two-radar scenes and score it with the statistical, double-threshold and "
                           "bias-robust methods against the bias (Lightning, one MLflow run).",
                           "python -m pipeline train-association --models models --reports reports",
-                          ["params", "models", "reports"]),
-    "train-lstm-update": (_train_lstm_update, "Train the LSTM update on a CA Kalman prediction with its MC-dropout "
+                          ["params", ("kind", "association_net"), "models", "reports"]),
+    "train-lstm-update": (_train, "Train the LSTM update on a CA Kalman prediction with its MC-dropout "
                           "covariance and score it on the hold-out against the tuned CA and IMM (Lightning, one "
                           "MLflow run).",
                           "python -m pipeline train-lstm-update --simulated data/simulated --windows data/windows "
                           "--models models --reports reports",
-                          ["params", "simulated", "windows", "models", "reports"]),
+                          ["params", ("kind", "lstm_update"), "simulated", "windows", "models", "reports"]),
     "fusion": (_fusion, "Two radars of params fusion: the multi-target scenes seen by both, each tracked alone, their "
                "tracks associated by every method and fused; GOSPA of each picture (reports/fusion.json).",
                "python -m pipeline fusion --models models --reports reports", ["params", "models", "reports"]),
@@ -251,13 +240,14 @@ def _window_m(text: str) -> float:
 
 
 def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:
-    if isinstance(option, tuple):
+    if isinstance(option, tuple) and option[0] == "kind":
+        command.set_defaults(kind=option[1])  # a command that trains one piece
+    elif isinstance(option, tuple):
         command.add_argument("--out", default=option[1], help="output folder (default: %(default)s)")
     elif option == "params":
         command.add_argument("--params", default="params.yaml", help="params file (default: %(default)s)")
     elif option == "kind":
-        command.add_argument("--kind", required=True, choices=("filter", "predictor", "autoencoder"),
-                             help="which network")
+        command.add_argument("--kind", required=True, choices=tuple(TRAINED), help="which piece")
     elif option == "recording":
         command.add_argument("--plots", help="plots Parquet (the schema `simulate` writes; truth columns optional)")
         command.add_argument("--radar", help="radar description Parquet (radar_id, latitude_deg, longitude_deg, "

@@ -23,6 +23,8 @@ from pipeline.association import association_net
 from pipeline.association.track_association import METHODS
 from pipeline.bench import association_report
 from pipeline.geometry import geodesy
+from pipeline.learning.fit import fit
+from pipeline.learning.model_store import save_network
 from pipeline.params import ParamError
 from tests import tracker_fixtures as tf
 from tests.project import write_params
@@ -46,9 +48,9 @@ def models(tmp_path_factory, params) -> Path:
     association = tf.make_params({"association.epochs": 4, "association.scenes_per_epoch": 100}).association
     torch.manual_seed(association.seed)
     model = association_net.AssociationNet(association_report.network_config(association))
-    small = association_report.train_config(association, deterministic=True)
-    association_net.train(model, association_report.training_epoch(association), small)
-    association_net.save(model, folder / "association_net.pt")
+    fit(*association_net.training_task(model, association_report.training_epoch(association), association,
+                                        deterministic=True))
+    save_network(folder / "association_net.pt", model)
     return folder
 
 

@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
 
 from pipeline import io
 from pipeline.association import association_net
-from pipeline.association.association_net import AssociationNet, AssociationNetConfig, TrainConfig, decide
+from pipeline.association.association_net import AssociationNet, AssociationNetConfig, decide, training_task
 from pipeline.association.association_scenes import make_scene
 from pipeline.bench.association_report import inputs_of
+from pipeline.learning.fit import fit
+from pipeline.learning.model_store import save_network
 from tests.association_fixtures import SETTING, straight_aircraft
 
 CONFIG = AssociationNetConfig(size=32, diameter_m=14142.0, feature_hidden=(8, 16, 36), decision_hidden=8)
+# the training knobs of params' `association` section
+SCHEDULE = SimpleNamespace(epochs=4, scenes_per_batch=4, learning_rate=0.01, seed=0)
 
 
 def test_decision_is_row_maximum_above_threshold_then_one_to_one():
@@ -32,7 +38,7 @@ def train_tiny() -> AssociationNet:
     def make_epoch(epoch: int):
         return [inputs_of(make_scene(SETTING, 11, epoch * 60 + k), CONFIG) for k in range(60)]
 
-    association_net.train(model, make_epoch, TrainConfig(4, 60, 4, 0.01, 0, True))
+    fit(*training_task(model, make_epoch, SCHEDULE, deterministic=True))
     return model
 
 
@@ -53,7 +59,7 @@ def test_trained_network_pairs_a_straight_aircraft_seen_without_bias(trained):
 
 
 def test_saved_network_decides_the_same(trained, tmp_path):
-    association_net.save(trained, tmp_path / "association_net.pt")
+    save_network(tmp_path / "association_net.pt", trained)
     loaded = association_net.load(tmp_path / "association_net.pt")
     inputs = inputs_of(make_scene(SETTING, 12, 0), CONFIG)
     np.testing.assert_array_equal(association_net.probabilities(loaded, inputs),
@@ -67,7 +73,8 @@ def test_a_loss_that_goes_nan_stops_the_training(one_torch_thread):
     scenes = [inputs_of(make_scene(SETTING, 11, k), CONFIG) for k in range(8)]
     with pytest.raises(io.TrainingDiverged, match="training of the association network stopped: the training loss "
                                                   "became nan at epoch 1 of 2, batch 2"):
-        association_net.train(model, lambda epoch: scenes, TrainConfig(2, 8, 4, 1e30, 0, True))
+        fit(*training_task(model, lambda epoch: scenes, SimpleNamespace(epochs=2, scenes_per_batch=4, learning_rate=1e30,
+                                                                        seed=0), deterministic=True))
 
 
 def test_neighbourhoods_hold_the_track_first_and_at_most_size_tracks():

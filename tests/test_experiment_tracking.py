@@ -276,27 +276,24 @@ def test_two_stages_started_at_once_on_a_fresh_store_both_log_their_run(tmp_path
     assert len(runs) == 2 and all(run.data.params["learning_rate"] == "0.001" for run in runs)
 
 
-def test_a_filter_training_run_is_failed_when_its_stage_raises_and_finished_otherwise(tmp_path: Path, make_params
-                                                                                     ) -> None:
-    """`filter_training_run`, as train_kalman_net and train_lstm_update open their run: the section's
-    params logged under its name; a stage body that raises leaves the run FAILED (and the error
-    goes on), one that returns leaves it FINISHED."""
-    from dataclasses import asdict
-
-    from pipeline.learning.experiment_tracking import filter_training_run
+def test_a_training_run_is_failed_when_its_stage_raises_and_finished_otherwise(tmp_path: Path, make_params) -> None:
+    """`training_run`, as every training stage opens its run: the run and a Lightning logger bound to it; a
+    stage body that raises (even KeyboardInterrupt) leaves the run FAILED and the error goes on, one that
+    returns leaves it FINISHED with what the logger logged."""
+    from pipeline.learning.tracking_logger import training_run
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     params = make_params(1, {"training.tracking_uri": uri})
-    data = tmp_path / "plots.parquet"
-    data.write_bytes(b"plots")
-    with filter_training_run(params, "train_lstm_update", "train-lstm-update", data, "lstm_update",
-                             params.lstm_update, "a test") as logger:
-        finished = logger.run_id
-    with pytest.raises(RuntimeError, match="training diverged"):
-        with filter_training_run(params, "train_lstm_update", "train-lstm-update", data, "lstm_update",
-                                 params.lstm_update, "a test") as logger:
-            failed = logger.run_id
-            raise RuntimeError("training diverged")
+    with training_run(params, "train_lstm_update", "train-lstm-update", {}, "nothing") as (run, logger):
+        assert logger.run_id == run.info.run_id
+        logger.log_hyperparams({"lstm_update.hidden": params.lstm_update.hidden})
+        finished = run.info.run_id
+    for error in (RuntimeError("training diverged"), KeyboardInterrupt()):
+        with pytest.raises(type(error)):
+            with training_run(params, "train_lstm_update", "train-lstm-update", {}, "nothing") as (run, _):
+                failed = run.info.run_id
+                raise error
+        assert mlflow.MlflowClient(tracking_uri=uri).get_run(failed).info.status == "FAILED"
     client = mlflow.MlflowClient(tracking_uri=uri)
-    assert client.get_run(finished).info.status == "FINISHED" and client.get_run(failed).info.status == "FAILED"
-    logged = client.get_run(finished).data.params
-    assert logged["lstm_update.hidden"] == str(asdict(params.lstm_update)["hidden"])
+    assert client.get_run(finished).info.status == "FINISHED"
+    assert client.get_run(finished).data.params["lstm_update.hidden"] == str(params.lstm_update.hidden)
+    assert client.get_run(finished).data.tags["mlflow.source.name"] == "python -m pipeline train-lstm-update"

@@ -7,6 +7,8 @@ the true noise ratio through the stage's Lightning loop; bad params and material
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pyarrow as pa
 import pytest
@@ -19,11 +21,13 @@ from pipeline.filters.gradient_tuning import TunedFilter
 from pipeline.filters.torch_filters import FilterSpec, SequenceBatch, filter_sequences
 from pipeline.io import InputError
 from pipeline.learning import kalman_net
-from pipeline.learning.filter_training import DescentConfig, descend
+from pipeline.learning.filter_training import descent
+from pipeline.learning.fit import fit
 from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
+from pipeline.learning.kalman_net_training import training_material
+from pipeline.learning.model_store import save_network
 from pipeline.params import ParamError
 from pipeline.settings import parse_params
-from pipeline.stages import kalman_net_stage
 from tests.test_classical import plots_table, radar_plots, random_flight, realistic_rows
 from tests.test_torch_filters import tensors
 
@@ -141,8 +145,8 @@ def test_gradient_tuned_r_scale_converges_near_the_true_noise_ratio():
     material, q = synthetic_cv_flights(256, 20, 2.0, seed=0)
     model = TunedFilter(FilterSpec("cv", (q,), 150.0 * np.sqrt(3), 0.0))
     model.logs["noise_std"].requires_grad_(False)
-    losses, _ = descend(model, "synthetic", material, DescentConfig(epochs=15, batch_segments=64, learning_rate=0.1,
-                                                                    truncation_steps=10, seed=0, deterministic=True))
+    knobs = SimpleNamespace(epochs=15, batch_segments=64, learning_rate=0.1, truncation_steps=10, seed=0)
+    losses = fit(*descent(model, "synthetic", material, knobs, deterministic=True)).train_loss
     assert losses[-1] < losses[0]
     assert 4.0 / 1.3 < model.to_dict()["r_scale"] < 4.0 * 1.3
 
@@ -154,8 +158,8 @@ def test_a_gradient_tuned_filter_whose_loss_goes_nan_stops_its_training():
     model = TunedFilter(FilterSpec("cv", (q,), 150.0 * np.sqrt(3), 0.0))
     with pytest.raises(io.TrainingDiverged, match=r"training of gradient_cv stopped: the training loss became nan "
                                                    r"at epoch 1 of 3, batch 2"):
-        descend(model, "gradient_cv", material, DescentConfig(epochs=3, batch_segments=16, learning_rate=1e30,
-                                                              truncation_steps=10, seed=0, deterministic=True))
+        fit(*descent(model, "gradient_cv", material, SimpleNamespace(epochs=3, batch_segments=16, learning_rate=1e30,
+                                                                     truncation_steps=10, seed=0), deterministic=True))
 
 
 def test_a_saved_network_with_a_nan_weight_is_refused(tmp_path):
@@ -163,7 +167,7 @@ def test_a_saved_network_with_a_nan_weight_is_refused(tmp_path):
     model = KalmanNet(config("singer", "mlp"))
     with torch.no_grad():
         model.network.head.weight[0, 0] = float("nan")
-    kalman_net.save(model, tmp_path / "kalman_net.pt")
+    save_network(tmp_path / "kalman_net.pt", model)
     with pytest.raises(io.InputError, match="kalman_net.pt: weight tensor 'network.head.weight' has 1 non-finite"):
         kalman_net.load(tmp_path / "kalman_net.pt")
 
@@ -175,7 +179,7 @@ def test_saved_model_loads_and_gives_per_step_scales(tmp_path, radar):
     model = KalmanNet(config("singer", "mlp"))
     with torch.no_grad():
         model.network.head.weight.normal_()
-    kalman_net.save(model, tmp_path / "kalman_net.pt")
+    save_network(tmp_path / "kalman_net.pt", model)
     loaded = kalman_net.load(tmp_path / "kalman_net.pt")
     rows = realistic_rows(radar)
     np.testing.assert_array_equal(loaded(batch_of(rows)).position.detach().numpy(),
@@ -226,7 +230,7 @@ def test_material_shorter_than_the_truncation_is_refused(make_params):
     table = table.append_column("plot_id", pa.array(np.arange(table.num_rows), pa.int64()))
     with pytest.raises(InputError, match="longest training segment has 12 plots, fewer than "
                                          "kalman_net.truncation_steps = 16"):
-        kalman_net_stage.training_material(params, table, table.slice(0, 0))
+        training_material(params, table, table.slice(0, 0))
 
 
 def test_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path):

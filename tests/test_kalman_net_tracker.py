@@ -15,8 +15,8 @@ import torch
 
 from pipeline import io
 from pipeline.filters.torch_filters import SequenceBatch
-from pipeline.learning import kalman_net
 from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
+from pipeline.learning.model_store import save_network
 from pipeline.tracker import registry
 from pipeline.tracker.kalman import KalmanEstimator
 from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator
@@ -61,7 +61,7 @@ def test_pinned_scales_track_as_the_kalman_estimator_with_the_same_filter(params
     features, ids = tf.merge((first, np.arange(20)), (second, 100 + np.arange(20)),
                              (clutter, 1000 + np.arange(len(clutter))))
     plots = tf.plots_of(features, ids, params.radar)
-    models = Models(filters=tf.untuned_filters(params), kalman_net=pinned_network(params))
+    models = Models({"kalman_tuned": tf.untuned_filters(params), "kalman_net": pinned_network(params)})
     network, classical = (track(plots, registry.compose(name, models, params.tracker, 4000.0, 0))
                           for name in ("kalman_net", "kalman_cv"))
     for column in ("track_id", "plot_id"):
@@ -127,7 +127,7 @@ def test_track_runs_kalman_net_from_its_model_file_and_names_the_stage_when_it_i
     with pytest.raises(io.InputError, match=r"kalman_net.pt: file not found; kalman_net needs it .*"
                                             r"dvc repro train_kalman_net"):
         load_models(models, params, ["kalman_net"])
-    kalman_net.save(pinned_network(params), models / "kalman_net.pt")
+    save_network(models / "kalman_net.pt", pinned_network(params))
     plots, radars, target_ids = two_radar_recording(params, np.random.default_rng(2))
     assert track_command(tmp_path, models, "kalman_net", plots, radars) == 0
     tracks = pq.read_table(tmp_path / "tracks.parquet").to_pydict()

@@ -161,7 +161,7 @@ def test_a_scan_scored_and_updated_at_once_gives_the_updates_of_plot_by_plot(par
     plots = crossing_flights_among_clutter(params)
     tables = []
     for pairwise in (True, False):
-        tracker = registry.compose(method, Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tracker = registry.compose(method, Models({"kalman_tuned": tf.untuned_filters(params)}), params.tracker, 4000.0, 0)
         tracker.estimator.pairwise = pairwise
         tables.append(track(plots, tracker))
     assert (tables[0]["association"] == method).sum() > 50
@@ -198,7 +198,7 @@ def test_nearest_neighbour_scored_ahead_gives_the_updates_of_plot_by_plot(params
     monkeypatch.setattr(run, "_unchanged_near", watched)
     tables = []
     for pairwise in (True, False):
-        tracker = registry.compose(method, Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tracker = registry.compose(method, Models({"kalman_tuned": tf.untuned_filters(params)}), params.tracker, 4000.0, 0)
         tracker.estimator.pairwise = pairwise
         assert tracker.looks_ahead == pairwise
         tables.append(track(plots, tracker))
@@ -216,7 +216,7 @@ def test_motion_table_starting_afresh_changes_nothing(params, monkeypatch):
     tables = []
     for cache in (kalman.MOTION_CACHE, 3):
         monkeypatch.setattr(kalman, "MOTION_CACHE", cache)
-        tracker = registry.compose("kalman_cv", Models(filters=tf.untuned_filters(params)), params.tracker, 4000.0, 0)
+        tracker = registry.compose("kalman_cv", Models({"kalman_tuned": tf.untuned_filters(params)}), params.tracker, 4000.0, 0)
         tables.append(track(plots, tracker))
         assert len(tracker.estimator._motion_code) <= max(cache, 12)  # at most a prediction's steps beyond it
     for column in tables[0]:

@@ -107,7 +107,7 @@ def confirmed_tracks(method: str, rule_name: str) -> int:
     """Confirmed tracks of the orbit tracked by `method` (tuned filters, 4 km young-track radius)
     under the management rule `rule_name`."""
     params = tf.make_params()
-    composition = registry.compose(method, Models(filters=TUNED), params.tracker, 4000.0, params.tracker.seed,
+    composition = registry.compose(method, Models({"kalman_tuned": TUNED}), params.tracker, 4000.0, params.tracker.seed,
                                    rule_name)
     updates = track(orbit_plots(params), composition)
     return len(np.unique(updates["track_id"][confirmed_associations(updates, composition.management)]))

@@ -80,7 +80,7 @@ def tracks_by_plot(plots: Plots, method: str, rule: str, **changes) -> tuple[dic
     window) under management rule `rule`, the tracker params changed by `changes`."""
     params = tf.make_params()
     tracker_params = dataclasses.replace(params.tracker, **changes)
-    tracker = registry.compose(method, Models(filters=TUNED), tracker_params, 4000.0, params.tracker.seed, rule)
+    tracker = registry.compose(method, Models({"kalman_tuned": TUNED}), tracker_params, 4000.0, params.tracker.seed, rule)
     updates = track(plots, tracker)
     confirmed = set(updates["track_id"][confirmed_associations(updates, tracker.management)].tolist())
     return dict(zip(updates["plot_id"].tolist(), updates["track_id"].tolist())), confirmed
@@ -156,7 +156,7 @@ def test_a_two_radar_recording_read_in_chunks_gives_the_updates_of_one_read_whol
     tracker_params = dataclasses.replace(tf.make_params().tracker, revisit_scans=0.5)
 
     def compose():
-        return registry.compose("kalman_cv", Models(filters=TUNED), tracker_params, 4000.0, 1, registry.M_OF_N_RULE)
+        return registry.compose("kalman_cv", Models({"kalman_tuned": TUNED}), tracker_params, 4000.0, 1, registry.M_OF_N_RULE)
 
     def chunk(begin: int) -> Plots:
         part = later.take(np.arange(begin, min(begin + 10, len(later))))

@@ -867,14 +867,14 @@ def slow_trained_lstm_update(models: Path) -> Path:
     """models/lstm_update.pt: an LSTM update (untrained: the alpha-beta filter it starts as, alpha = beta =
     0.5, MC dropout 0.3 over 8 copies) whose young tracks' copies start at velocities of 150 m/s spread,
     as a model trained on targets up to about 450 m/s (3 sigma) carries."""
-    from pipeline.learning import kalman_net
     from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
+    from pipeline.learning.model_store import save_network
     config = LSTMUpdateConfig(hidden=8, dropout=0.3, mc_samples=8, detach_prediction=True, position_scale_m=1000.0,
                               velocity_scale_mps=400.0, acceleration_scale_mps2=10.0, time_scale_s=6.0,
                               initial_alpha=0.5, initial_beta=0.5, floor_m=1.0, start_velocity_std_mps=150.0,
                               calibration_ages=4, calibration_gaps=3)
     models.mkdir(parents=True, exist_ok=True)
-    kalman_net.save(LSTMUpdate(config), models / "lstm_update.pt")
+    save_network(models / "lstm_update.pt", LSTMUpdate(config))
     return models
 
 

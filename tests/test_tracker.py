@@ -96,8 +96,8 @@ def test_trained_predictor_extrapolates_a_straight_track_within_a_few_hundred_me
 
 
 def test_autoencoder_model_carries_its_calibrated_threshold(models):
-    assert models.autoencoder.extras["threshold"] > 0.0
-    assert 0.0 <= models.autoencoder.extras["false_windows_rejected"] <= 1.0
+    assert models["autoencoder"].extras["threshold"] > 0.0
+    assert 0.0 <= models["autoencoder"].extras["false_windows_rejected"] <= 1.0
 
 
 # ----------------------------------------------------------------------------- 1a: one clean target
@@ -187,9 +187,9 @@ def test_network_methods_tracked_in_chunks_give_the_updates_of_tracking_whole(me
     autoencoder's 5: what a track carries into the next chunk (its first plot and the latest its
     roles read) gives the whole recording's updates bit for bit, on tracks longer than the windows."""
     tracker = lambda: registry.compose(method, models, params.tracker, WINDOW_M, params.tracker.seed)
-    assert tracker().latest_plots == models.filter.config.input_steps - 1  # the widest window read
+    assert tracker().latest_plots == models["filter"].config.input_steps - 1  # the widest window read
     whole = tf.assert_chunked_as_whole(tf.busy_recording(params.radar), tracker, (1, 7))
-    assert max(map(len, tf.tracks_of(whole).values())) > models.filter.config.input_steps
+    assert max(map(len, tf.tracks_of(whole).values())) > models["filter"].config.input_steps
 
 # ----------------------------------------------------------------------------- 1c: deletion
 

@@ -251,7 +251,7 @@ def test_a_recording_tracked_in_chunks_gives_the_updates_of_tracking_it_whole(me
     the whole recording's, bit for bit, for nearest per plot, global nearest per scan and the oracle."""
     params = tf.make_params()
     recording = tf.busy_recording(params.radar)
-    models = Models(filters=tf.untuned_filters(params))
+    models = Models({"kalman_tuned": tf.untuned_filters(params)})
     whole = tf.assert_chunked_as_whole(
         recording, lambda: registry.compose(method, models, params.tracker, 4000.0, [params.tracker.seed]), (1, 7, 100))
     assert max(map(len, tf.tracks_of(whole).values())) > 7  # tracks outlive a chunk

@@ -23,15 +23,13 @@ import pytest
 import torch
 
 from pipeline import cli, io
-from pipeline.learning import model_eval, training
+from pipeline.learning import model_eval, runner, training
 from pipeline.learning.experiment_tracking import SESSION_TAG, data_hash
 from pipeline.learning.mlflow_models import DATASET_DIGEST_CHARS, FILE_DIGEST_TAG, registered_name, versions_used
-from pipeline.learning.model_store import load_model, save_model
+from pipeline.learning.model_store import load_model, save_network
 from pipeline.learning.networks import KINDS, NetworkConfig, build_network
 from pipeline.learning.scaling import plot_scaler
-from pipeline.learning.training import TrainingConfig, WindowDataModule, train
-from pipeline.stages import train_stage
-from pipeline.stages.train_stage import network_config
+from pipeline.learning.training import TrainingConfig, WindowDataModule, network_config, train
 from tests.project import REPOSITORY, environment, run_pipeline, tiny_params_tree, write_params
 
 # The networks of params.yaml (thesis 4.3).
@@ -203,12 +201,12 @@ def test_same_seed_gives_the_same_weights_and_another_seed_other_weights():
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_saved_model_loads_and_gives_the_same_outputs(tmp_path, kind):
-    """save_model then load_model: same config, scaler and extras, and bit-identical outputs."""
+    """save_network then load_model: same config, scaler and extras, and bit-identical outputs."""
     config = CONFIGS[kind]
     torch.manual_seed(1)
     network = build_network(config).eval()
     path = tmp_path / f"{kind}.pt"
-    save_model(path, network, config, SCALER, {"threshold": 1.5})
+    save_network(path, network, {"threshold": 1.5}, SCALER)
     model = load_model(path, expected_kind=kind)
     assert (model.config, model.scaler, model.extras) == (config, SCALER, {"threshold": 1.5})
     windows = torch.randn(9, config.input_steps, config.input_features)
@@ -219,7 +217,7 @@ def test_saved_model_loads_and_gives_the_same_outputs(tmp_path, kind):
 def test_model_of_another_kind_is_refused(tmp_path):
     """Asking for a predictor from a filter's file names the file and both kinds."""
     path = tmp_path / "filter.pt"
-    save_model(path, build_network(CONFIGS["filter"]), CONFIGS["filter"], SCALER)
+    save_network(path, build_network(CONFIGS["filter"]), scaler=SCALER)
     with pytest.raises(io.InputError, match=f"{path}: holds a filter network, expected a predictor"):
         load_model(path, expected_kind="predictor")
 
@@ -227,7 +225,7 @@ def test_model_of_another_kind_is_refused(tmp_path):
 def test_weights_that_do_not_fit_the_recorded_architecture_are_refused(tmp_path):
     """A bundle whose recorded hidden sizes were edited no longer fits its weights: the error says so."""
     path = tmp_path / "filter.pt"
-    save_model(path, build_network(CONFIGS["filter"]), CONFIGS["filter"], SCALER)
+    save_network(path, build_network(CONFIGS["filter"]), scaler=SCALER)
     bundle = torch.load(path, weights_only=True)
     bundle["config"]["hidden"] = [4, 16]
     torch.save(bundle, path)
@@ -242,7 +240,7 @@ def test_a_bundle_with_a_non_finite_weight_is_refused_naming_the_file_and_the_te
     with torch.no_grad():
         network.head.weight[0, 0] = float("nan")
     path = tmp_path / "predictor.pt"
-    save_model(path, network, CONFIGS["predictor"], SCALER)
+    save_network(path, network, scaler=SCALER)
     with pytest.raises(io.InputError, match=f"{path}: weight tensor 'head.weight' has 1 non-finite values"):
         load_model(path, expected_kind="predictor")
 
@@ -460,7 +458,7 @@ def test_the_evaluate_stage_finds_the_registered_versions_of_the_bundles_it_uses
         kind: ("1", only_run(trained, kind).info.run_id) for kind in KINDS}
     shutil.copytree(chain / "models", tmp_path / "models")
     model = load_model(tmp_path / "models" / "filter.pt")
-    save_model(tmp_path / "models" / "filter.pt", model.network, model.config, model.scaler, {"retrained": True})
+    save_network(tmp_path / "models" / "filter.pt", model.network, {"retrained": True}, model.scaler)
     assert versions_used(trained, EXPERIMENT, tmp_path / "models")["filter"] is None
 
 
@@ -504,7 +502,7 @@ def no_training(monkeypatch) -> None:
     def refuse_to_train(*arguments, **keywords):
         raise AssertionError("training started on bad input")
 
-    monkeypatch.setattr(train_stage, "train", refuse_to_train)
+    monkeypatch.setattr(runner, "fit", refuse_to_train)
 
 
 @pytest.fixture
@@ -593,7 +591,7 @@ def test_a_stage_that_fails_after_its_run_opened_ends_the_run_failed(chain, tmp_
     def fail_in_training(*arguments, **keywords):
         raise RuntimeError("the training loop failed")
 
-    monkeypatch.setattr(train_stage, "train", fail_in_training)
+    monkeypatch.setattr(runner, "fit", fail_in_training)
     monkeypatch.chdir(tmp_path)
     with pytest.raises(RuntimeError, match="the training loop failed"):
         train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)
@@ -632,13 +630,13 @@ def test_a_store_removed_during_training_costs_no_model_and_ends_in_a_named_erro
     """The SQLite store deleted once the run is open (its writes then fail): each write is retried, the
     training goes on and writes its model and reports, and the command exits 2 naming the store, without
     a traceback."""
-    real_train = train_stage.train
+    real_fit = runner.fit
 
     def remove_the_store_then_train(*arguments, **keywords):
         local_store.unlink()
-        return real_train(*arguments, **keywords)
+        return real_fit(*arguments, **keywords)
 
-    monkeypatch.setattr(train_stage, "train", remove_the_store_then_train)
+    monkeypatch.setattr(runner, "fit", remove_the_store_then_train)
     monkeypatch.setattr("pipeline.learning.experiment_tracking.LOCAL_STORE_BACKOFF_S", 0.01)
     monkeypatch.chdir(tmp_path)
     code, log = train_command(caplog, chain / "params.yaml", "predictor", chain / "windows", tmp_path)

@@ -3,7 +3,7 @@
 The models are the thesis's three networks (sizes from params.yaml) trained for a few seconds on
 synthetic straight and gently turning flights sampled every 6 s in the radar's local ENU frame,
 scaled exactly as the `windows` stage scales material (`materials.scalers(params.windows)`), saved
-with `model_store.save_model` and loaded back with `model_store.load_model`, so the tracker gets
+with `model_store.save_network` and loaded back with `model_store.load_model`, so the tracker gets
 what `dvc repro` would give it, only less well trained. The predictor also sees windows padded
 the way the tracker pads the states of young tracks (thesis 4.6).
 
@@ -27,12 +27,11 @@ from pipeline.filters.classical_filters import KINDS, FilterSettings
 from pipeline.geometry import geodesy
 from pipeline.learning import materials, model_eval
 from pipeline.learning.model_eval import output_scaler
-from pipeline.learning.model_store import LoadedModel, load_model, save_model
-from pipeline.learning.training import TrainingConfig, train
+from pipeline.learning.model_store import LoadedModel, load_model, save_network
+from pipeline.learning.training import TrainingConfig, network_config, train
 from pipeline.params import Params, Radar
 from pipeline.settings import parse_params
 from pipeline.recordings.plot_table import NO_SCENARIO, NO_TARGET, PLOT_INPUT_SCHEMA, RADAR_INPUT_SCHEMA, Plots
-from pipeline.stages.train_stage import network_config
 from pipeline.stages.tune_stage import start_settings
 from pipeline.tracker.models import Models
 from tests.project import default_params_tree
@@ -196,7 +195,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     config = network_config("predictor", params)
     module, _ = train(config, scaler.transform(raw_in, origin), output_scaler(scaler).transform(raw_out, origin),
                       _training("predictor", params, EPOCHS["predictor"]))
-    save_model(folder / "predictor.pt", module.network, config, scaler)
+    save_network(folder / "predictor.pt", module.network, scaler=scaler)
 
     # Filter: 10 noisy plots -> the true last 5.
     scaler = scalers["plots"]
@@ -209,7 +208,7 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     module, _ = train(config, scaler.transform(raw_in, origin),
                       scaler.transform(raw_out, origin)[:, -config.output_steps:],
                       _training("filter", params, EPOCHS["filter"]))
-    save_model(folder / "filter.pt", module.network, config, scaler)
+    save_network(folder / "filter.pt", module.network, scaler=scaler)
 
     # Autoencoder: 5 noisy plots reconstructed; threshold by the thesis's rule on calibration windows
     # whose 5th plot is the flight's next plot (target) or a clutter plot up to 20 km away (false).
@@ -231,8 +230,8 @@ def build_models(folder: Path, params: Params, seed: int = 11) -> Path:
     labels = np.repeat([True, False], 200)
     errors = model_eval.reconstruction_errors(model, scaler.transform(calibration, scaler.origin(calibration, site)))
     threshold, rejected = model_eval.autoencoder_threshold(errors, labels)
-    save_model(folder / "autoencoder.pt", module.network, config, scaler,
-               {"threshold": threshold, "false_windows_rejected": rejected})
+    save_network(folder / "autoencoder.pt", module.network, {"threshold": threshold, "false_windows_rejected": rejected},
+                 scaler)
     return folder
 
 
@@ -265,8 +264,8 @@ def write_tuned_filters(folder: Path, params: Params) -> Path:
 
 
 def load_models(folder: Path) -> Models:
-    return Models(load_model(folder / "predictor.pt", "predictor"), load_model(folder / "filter.pt", "filter"),
-                  load_model(folder / "autoencoder.pt", "autoencoder"), filters=untuned_filters(make_params()))
+    return Models({kind: load_model(folder / f"{kind}.pt", kind) for kind in ("predictor", "filter", "autoencoder")}
+                  | {"kalman_tuned": untuned_filters(make_params())})
 
 
 def plots_of(features: np.ndarray, plot_ids: np.ndarray, radar: Radar, target_ids: np.ndarray | None = None

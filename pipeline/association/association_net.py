@@ -18,11 +18,10 @@ what happens when two rows pick one column): candidates are taken by decreasing 
 
 from __future__ import annotations
 
-import logging
-import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 import numpy as np
@@ -31,9 +30,10 @@ from torch import Tensor, nn
 from torch.utils.data import DataLoader
 
 from pipeline.association.scene_tensor import pair_features, scene_tensor
-from pipeline.learning import model_store, training  # training: also Lightning's logging set up as elsewhere
+from pipeline.learning import model_store
+from pipeline.learning.fit import FitConfig, Task
+from pipeline.sections import subset
 
-log = logging.getLogger("pipeline")
 SCENE_EMBEDDING = 36   # the seed's flattened scene embedding (1 channel of 6 x 6)
 
 
@@ -171,16 +171,6 @@ def associate_network(model: AssociationNet, states1: np.ndarray, covariances1: 
     return decide(scene_probabilities(model, states1, covariances1, states2, covariances2), threshold)
 
 
-@dataclass(frozen=True)
-class TrainConfig:
-    epochs: int
-    scenes_per_epoch: int
-    scenes_per_batch: int
-    learning_rate: float
-    seed: int
-    deterministic: bool
-
-
 class FreshScenes(L.LightningDataModule):
     """Every epoch new scenes from `make_epoch(epoch)` (the seed's fresh simulation per epoch), in batches."""
 
@@ -194,72 +184,44 @@ class FreshScenes(L.LightningDataModule):
 
 
 class AssociationTraining(L.LightningModule):
-    """Binary cross-entropy on every pair of every scene of a batch; per-epoch loss and pair accuracy at 0.5."""
+    """Binary cross-entropy on every pair of every scene of a batch, with Adam; per-epoch pair accuracy at 0.5
+    (`association.pair_accuracy`)."""
 
-    def __init__(self, model: AssociationNet, config: TrainConfig) -> None:
+    def __init__(self, model: AssociationNet, learning_rate: float) -> None:
         super().__init__()
-        self.model, self.config = model, config
+        self.model, self.learning_rate = model, learning_rate
         self.loss = nn.BCEWithLogitsLoss()
-        self.epoch_losses: list[float] = []
-        self._began = 0.0
-
-    def on_train_start(self) -> None:
-        self._began = time.monotonic()
 
     def on_train_epoch_start(self) -> None:
-        self._loss_sum, self._right, self._pairs = 0.0, 0, 0
+        self._right, self._pairs = 0, 0
 
-    def training_step(self, batch: tuple[Tensor, ...], batch_index: int) -> Tensor:
+    def training_step(self, batch: tuple[Tensor, ...], batch_index: int) -> dict[str, Any]:
         scenes, features, index, labels = batch
         logits = self.model(scenes, features, index)
-        loss = self.loss(logits, labels)
-        self._loss_sum += float(loss.detach()) * len(labels)
         self._right += int(((logits.detach() > 0) == (labels > 0.5)).sum())
         self._pairs += len(labels)
-        return loss
-
-    def epoch_train_loss(self) -> float:
-        """The epoch's mean binary cross-entropy per pair so far."""
-        return self._loss_sum / max(self._pairs, 1)
+        return {"loss": self.loss(logits, labels), "weight": len(labels)}
 
     def on_train_epoch_end(self) -> None:
-        loss, accuracy = self.epoch_train_loss(), self._right / max(self._pairs, 1)
-        self.epoch_losses.append(loss)
-        self.log_dict({"association.train_loss": loss, "association.pair_accuracy": accuracy})
-        log.info("train_association: epoch %d/%d, loss %.4f, pair decisions right %.4f, %.0f s",
-                 len(self.epoch_losses), self.config.epochs, loss, accuracy, time.monotonic() - self._began)
+        self.log("association.pair_accuracy", self._right / max(self._pairs, 1))
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.model.parameters(), lr=self.config.learning_rate)
+        return torch.optim.Adam(self.model.parameters(), lr=self.learning_rate)
 
 
-def train(model: AssociationNet, make_epoch: Callable[[int], list[SceneInputs]], config: TrainConfig,
-          logger: L.pytorch.loggers.Logger | bool = False) -> tuple[list[float], float]:
-    """Train `model` in place with Lightning's Trainer on CPU; per-epoch mean losses and the seconds it took.
-    Deterministic for a seed (the scenes come from `make_epoch`, the batches in order). TrainingDiverged when
-    the loss or a weight goes non-finite (`training.FiniteTraining`)."""
-    L.seed_everything(config.seed, workers=True, verbose=False)
-    module = AssociationTraining(model, config)
-    trainer = L.Trainer(max_epochs=config.epochs, accelerator="cpu", devices=1, logger=logger,
-                        callbacks=[training.FiniteTraining("the association network", config.learning_rate,
-                                                           every_batch=True)],
-                        deterministic=config.deterministic, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0,
-                        reload_dataloaders_every_n_epochs=1)
-    began = time.perf_counter()
-    trainer.fit(module, datamodule=FreshScenes(make_epoch, config.scenes_per_batch))
-    model.eval()
-    return module.epoch_losses, time.perf_counter() - began
-
-
-def save(model: AssociationNet, path: Path, extras: dict | None = None) -> None:
-    """The config and weights in one torch file (written whole or not at all)."""
-    model_store.write_bundle({"config": asdict(model.config), "state_dict": model.state_dict(),
-                              "extras": extras or {}}, path)
+def training_task(model: AssociationNet, make_epoch: Callable[[int], list[SceneInputs]], knobs: Any,
+                  deterministic: bool) -> Task:
+    """`model` trained on the scenes of `make_epoch`, new ones every epoch, in batches of `scenes_per_batch`
+    scenes in order (Lightning, on the CPU), by `knobs`: params' `association` section, or any with its
+    `epochs`, `scenes_per_batch`, `learning_rate` and `seed`."""
+    config = subset(FitConfig, knobs, label="the association network", loss_name="association.train_loss",
+                    deterministic=deterministic, fresh_data_every_epoch=True)
+    return Task(AssociationTraining(model, config.learning_rate), FreshScenes(make_epoch, knobs.scenes_per_batch),
+                config)
 
 
 def load(path: Path) -> AssociationNet:
-    """A saved association network, ready to decide (eval mode); InputError naming a missing, unreadable or
-    foreign file (`model_store.load_network`)."""
+    """A saved association network (`model_store.save_network`), ready to decide (eval mode); InputError naming a
+    missing, unreadable or foreign file (`model_store.load_network`)."""
     return model_store.load_network(path, lambda config: AssociationNet(AssociationNetConfig(
         **{**config, "feature_hidden": tuple(config["feature_hidden"])})), "train_association")

@@ -26,7 +26,6 @@ from pipeline.association.association_net import (  # noqa: E402
     AssociationNet,
     AssociationNetConfig,
     SceneInputs,
-    TrainConfig,
     associate_network,
     scene_inputs,
 )
@@ -35,6 +34,7 @@ from pipeline.association.bias_robust_association import associate_bias_robust  
 from pipeline.association.track_association import associate_double_threshold, associate_statistical  # noqa: E402
 from pipeline.figure_png import png  # noqa: E402
 from pipeline.params import Association  # noqa: E402
+from pipeline.sections import subset  # noqa: E402
 
 METHODS = ("statistical", "double_threshold", "bias_robust", "network")
 SEED_ACCURACY = 0.875          # the seed's reported accuracy on a new scene of its setting (section 4.2)
@@ -43,16 +43,12 @@ STATED_ACCURACY_PROBABILITY = 0.99
 
 def scene_setting(a: Association, bias_m: tuple[float, float]) -> SceneSetting:
     """The seed's setting of params `association`, radar 2's bias length uniform in `bias_m`."""
-    return SceneSetting(a.targets, a.area_m, a.scan_period_s, a.track_points, a.noise_m, a.detection_probability,
-                        a.speed_mps, a.acceleration_std_mps2, bias_m, a.tracks)
+    return subset(SceneSetting, a, bias_m=bias_m)
 
 
 def network_config(a: Association) -> AssociationNetConfig:
-    return AssociationNetConfig(a.scene_size, a.scene_diameter_m, a.feature_hidden, a.decision_hidden)
-
-
-def train_config(a: Association, deterministic: bool) -> TrainConfig:
-    return TrainConfig(a.epochs, a.scenes_per_epoch, a.scenes_per_batch, a.learning_rate, a.seed, deterministic)
+    """The network of params `association` (its `scene_*` keys: the bundle's config keeps the network's names)."""
+    return subset(AssociationNetConfig, a, size=a.scene_size, diameter_m=a.scene_diameter_m)
 
 
 def inputs_of(scene: Scene, config: AssociationNetConfig) -> SceneInputs:

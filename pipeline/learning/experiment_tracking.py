@@ -34,7 +34,7 @@ answering) does not cost the stage its outputs. Every write of a run is retried 
 times (`write_to_store`: a local store `LOCAL_STORE_ATTEMPTS` times; a server by MLflow's own HTTP
 retries, MLFLOW_HTTP_REQUEST_MAX_RETRIES and MLFLOW_HTTP_REQUEST_TIMEOUT, `RUN_HTTP_SETTINGS` unless
 set); when one still fails, a warning names the store and the run's later writes are skipped
-(`TrainingLogger`), the training goes on and writes its model and reports (atomically, as always),
+(`tracking_logger.TrainingLogger`), the training goes on and writes its model and reports (atomically, as always),
 and the stage then ends with a TrackingError naming the URI and the outputs written (exit 2).
 
 What the UI groups by: every run is tagged `pipeline.session`, the same for every stage of one
@@ -71,7 +71,6 @@ from pipeline.io import InputError, process_alive
 if TYPE_CHECKING:
     from mlflow import ActiveRun, MlflowClient
 
-    from pipeline.learning.tracking_logger import TrainingLogger
     from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
@@ -286,50 +285,6 @@ def run_tags(stage: str) -> dict[str, str]:
     """The tags of a stage's run: the stage, the commit of the code, and the host and pid of the
     process, by which a later start of the stage tells a killed run from one still going."""
     return {"stage": stage, "git_commit": git_commit(), "host": socket.gethostname(), "pid": str(os.getpid())}
-
-
-def lightning_logger(params: Params, stage: str, command: str, data: Path) -> TrainingLogger:
-    """Lightning's MLflow logger for the one run of a training stage that trains with `filter_training`
-    (`train_kalman_net`, `train_lstm_update`), the store checked first (`check_tracking_store`): its
-    tags, the hash of its input `data` and the command that made it."""
-    from pipeline.learning.tracking_logger import TrainingLogger
-
-    uri = tracking_uri(params.training.tracking_uri)
-    check_tracking_store(uri, params.training.experiment, stage)
-    logger = TrainingLogger(uri, experiment_name=params.training.experiment, run_name=stage,
-                            tags={**run_tags(stage), **session_tags(params), "input_data_sha256": data_hash(data),
-                                  "mlflow.source.name": f"python -m pipeline {command}"})
-    write_to_store(uri, "starting the run", lambda: logger.run_id)
-    return logger
-
-
-@contextmanager
-def filter_training_run(params: Params, stage: str, command: str, data: Path, section: str, values: object,
-                        describe: str) -> Iterator[TrainingLogger]:
-    """The one MLflow run of a stage that trains with `filter_training` (`train_kalman_net`,
-    `train_lstm_update`): `lightning_logger`'s run, logged (`describe`, with the run's id and store)
-    and given the params of `section` (a params dataclass `values`, each key as `<section>.<key>`);
-    yields the logger. Ended as FAILED if the body raises (even KeyboardInterrupt), else as success;
-    TrackingError after the body when a write to the store failed (`TrainingLogger`)."""
-    logger = lightning_logger(params, stage, command, data)
-    log.info("%s: %s, MLflow run %s in %s", stage, describe, logger.run_id, tracking_uri(params.training.tracking_uri))
-    with ended_run(logger, "the stage's outputs"):
-        logger.log_hyperparams({f"{section}.{key}": value for key, value in asdict(values).items()})
-        yield logger
-
-
-@contextmanager
-def ended_run(logger: TrainingLogger, written: str) -> Iterator[None]:
-    """The block's run ended FAILED if the block raises (even KeyboardInterrupt; a store that fails then is
-    warned about, the block's error goes on), else FINISHED, and then TrackingError if any write to the store
-    failed (`TrainingLogger.raise_if_failed`, `written` naming the outputs the block wrote)."""
-    try:
-        yield
-    except BaseException:
-        logger.finalize("failed")
-        raise
-    logger.finalize("success")
-    logger.raise_if_failed(written)
 
 
 def dvc_experiment() -> str | None:

@@ -1,5 +1,6 @@
-"""Gradient descent on a filter over training segments with Lightning: the network-scaled filter and the
-gradient-tuned classical filters share this loop, loss, data and truncation.
+"""Gradient descent on a filter over training segments with Lightning: the network-scaled filter, the
+gradient-tuned classical filters and the LSTM update share this task, loss, data and truncation (fitted by
+`fit.fit`).
 
 Material: the target plots of a split (their own radar noise: each epoch sees the same noisy
 plots, as the Nelder-Mead tuner does; drawing fresh noise every epoch as the seed paper does
@@ -19,9 +20,8 @@ noise ratio (tests/test_kalman_net.py).
 
 from __future__ import annotations
 
-import logging
-import time
-from dataclasses import dataclass, fields
+from dataclasses import fields
+from typing import Any
 
 import lightning as L
 import pyarrow as pa
@@ -33,22 +33,9 @@ from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler
 from pipeline import io
 from pipeline.filters import tuning
 from pipeline.filters.torch_filters import SequenceBatch
-from pipeline.learning import training  # training: Lightning's logging set up as for the other networks
+from pipeline.learning.fit import FitConfig, Task
 from pipeline.params import Radar
-
-log = logging.getLogger("pipeline")
-
-
-@dataclass(frozen=True)
-class DescentConfig:
-    """How one filter is trained (params.yaml `kalman_net`)."""
-
-    epochs: int
-    batch_segments: int
-    learning_rate: float
-    truncation_steps: int
-    seed: int
-    deterministic: bool
+from pipeline.sections import subset
 
 
 def training_segments(plots: pa.Table, holdout: pa.Table | None, radar: Radar, restart_gap_s: float,
@@ -96,57 +83,31 @@ class SegmentData(L.LightningDataModule):
 
 
 class FilterDescent(L.LightningModule):
-    """A filter module (`forward(batch, detach_every) -> Filtered`) trained on the mean position error."""
+    """A filter module (`forward(batch, detach_every)`: its estimates, a `Filtered` or anything with their
+    `position` (B, T, 3) m) trained on the mean position error over the scored plots, truncated every
+    `truncation_steps` steps, Adam's rate annealed over `epochs`."""
 
-    def __init__(self, model: nn.Module, label: str, config: DescentConfig) -> None:
+    def __init__(self, model: nn.Module, truncation_steps: int, learning_rate: float, epochs: int) -> None:
         super().__init__()
-        self.model, self.label, self.config = model, label, config
-        self.epoch_losses: list[float] = []
-        self._began = 0.0
+        self.model, self.truncation_steps = model, truncation_steps
+        self.learning_rate, self.epochs = learning_rate, epochs
 
-    def on_train_start(self) -> None:
-        self._began = time.monotonic()
-
-    def on_train_epoch_start(self) -> None:
-        self._error_sum, self._scored = 0.0, 0
-
-    def training_step(self, tensors: tuple[Tensor, ...], batch_index: int) -> Tensor:
+    def training_step(self, tensors: tuple[Tensor, ...], batch_index: int) -> dict[str, Any]:
         batch = SequenceBatch(*tensors)
-        loss = batch.position_error(self.model(batch, self.config.truncation_steps))
-        scored = int(batch.scored.sum())
-        self._error_sum += float(loss.detach()) * scored
-        self._scored += scored
-        return loss
-
-    def epoch_train_loss(self) -> float:
-        """The epoch's mean position error so far (m)."""
-        return self._error_sum / max(self._scored, 1)
-
-    def on_train_epoch_end(self) -> None:
-        loss = self.epoch_train_loss()
-        self.epoch_losses.append(loss)
-        self.log(f"{self.label}.train_loss", loss)
-        log.info("%s: epoch %d/%d, mean position error %.2f m, %.0f s", self.label,
-                 len(self.epoch_losses), self.config.epochs, loss, time.monotonic() - self._began)
+        loss = batch.position_error(self.model(batch, self.truncation_steps))
+        return {"loss": loss, "weight": int(batch.scored.sum())}
 
     def configure_optimizers(self) -> dict:
-        optimizer = torch.optim.Adam(self.model.parameters(), lr=self.config.learning_rate)
-        cosine = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=self.config.epochs)
+        optimizer = torch.optim.Adam(self.model.parameters(), lr=self.learning_rate)
+        cosine = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=self.epochs)
         return {"optimizer": optimizer, "lr_scheduler": cosine}
 
 
-def descend(model: nn.Module, label: str, material: SequenceBatch, config: DescentConfig,
-            logger: L.pytorch.loggers.Logger | bool = False) -> tuple[list[float], float]:
-    """Train `model` in place (Lightning's Trainer, CPU: the recursion is a loop of small operations);
-    its per-epoch mean position errors (m) and the seconds it took. Deterministic for a seed.
-    TrainingDiverged naming `label` when the loss or a weight goes non-finite (`training.FiniteTraining`)."""
-    L.seed_everything(config.seed, workers=True, verbose=False)
-    module = FilterDescent(model, label, config)
-    trainer = L.Trainer(max_epochs=config.epochs, accelerator="cpu", devices=1, logger=logger,
-                        callbacks=[training.FiniteTraining(label, config.learning_rate, every_batch=True)],
-                        deterministic=config.deterministic, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, num_sanity_val_steps=0, limit_val_batches=0)
-    began = time.perf_counter()
-    trainer.fit(module, datamodule=SegmentData(material, config.batch_segments, config.seed))
-    model.eval()
-    return module.epoch_losses, time.perf_counter() - began
+def descent(model: nn.Module, label: str, material: SequenceBatch, knobs: Any, deterministic: bool) -> Task:
+    """`model` trained on `material` (Lightning, on the CPU: the recursion is a loop of small operations) by
+    `knobs`: params' `kalman_net` or `lstm_update` section, or any with its `epochs`, `batch_segments`,
+    `learning_rate`, `truncation_steps` and `seed`. Logged as `<label>.train_loss`, the epoch's mean
+    position error (m); `label` also names it when its loss or a weight goes non-finite."""
+    config = subset(FitConfig, knobs, label=label, loss_name=f"{label}.train_loss", deterministic=deterministic)
+    return Task(FilterDescent(model, knobs.truncation_steps, config.learning_rate, config.epochs),
+                SegmentData(material, knobs.batch_segments, config.seed), config)

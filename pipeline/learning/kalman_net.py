@@ -25,13 +25,14 @@ network is the base filter with Q0 and R0, and the amplitudes are the largest fa
 
 `KalmanNet.step_scales` is the per-step interface (state, plot, memory -> scales, memory) a
 tracker's estimator can call for one track or many; `KalmanNet.forward` runs it over a batch of
-sequences (`torch_filters.filter_sequences`) with truncated BPTT; `save` / `load` keep the model.
+sequences (`torch_filters.filter_sequences`) with truncated BPTT; `load` reads it back
+(`model_store.save_network` writes it; `kalman_net_training` trains it).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -203,13 +204,6 @@ class SequenceScaler:
             self.memory = self.memory.detached()
         scales, self.memory = self.model.step_scales(self.memory, step, self.fresh[:, step.t], self.moving[:, step.t])
         return scales
-
-
-def save(model: nn.Module, path: Path, extras: dict | None = None) -> None:
-    """A network with a dataclass `config` (this one, `lstm_update.LSTMUpdate`): the config and weights
-    (buffers included) in one torch file, written whole or not at all."""
-    model_store.write_bundle({"config": asdict(model.config), "state_dict": model.state_dict(),
-                              "extras": extras or {}}, path)
 
 
 def load(path: Path) -> KalmanNet:

@@ -433,7 +433,7 @@ def _gate_factor(innovation: Tensor, C: Tensor, rest: Tensor, probability: float
 
 
 def load(path: Path) -> LSTMUpdate:
-    """An estimator saved by `kalman_net.save` (config, weights, calibration), ready to estimate (eval mode);
-    InputError naming a missing, unreadable or foreign file (`model_store.load_network`)."""
+    """An estimator saved by `model_store.save_network` (config, weights, calibration), ready to estimate (eval
+    mode); InputError naming a missing, unreadable or foreign file (`model_store.load_network`)."""
     return model_store.load_network(path, lambda config: LSTMUpdate(LSTMUpdateConfig(**config)),
                                     "train_lstm_update")

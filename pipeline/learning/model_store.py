@@ -1,15 +1,19 @@
-"""Trained models on disk: one file per network with its weights, config, scaler and extras.
+"""Trained models on disk: one file per network with its weights, config and extras (`save_network`).
 
-`load_model(path)` is the one way to get a usable network back. It refuses a file whose
-weights do not fit the architecture recorded with them, and the tracker compares the
-recorded scaler with the windows' scaler so a model is never fed differently scaled data.
+Two layouts, both kept as they are so that the bundles already on disk still load, with the same bytes:
+- a thesis network (`pipeline.learning.networks`) also keeps the scaler of its windows, and a format
+  version: `load_model(path)` is the one way to get it back usable. It refuses a file whose weights do
+  not fit the architecture recorded with them, and the tracker compares the recorded scaler with the
+  windows' scaler so a model is never fed differently scaled data;
+- every other network (the network-scaled filter, the LSTM update, the association network) keeps its
+  config dataclass, weights (buffers included) and extras: `load_network(path, build, stage)`.
 The file holds only tensors and plain values, so it loads with `weights_only=True`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from io import BytesIO
 from pathlib import Path
 from typing import Any, Callable
@@ -85,8 +89,8 @@ def read_bundle(path: str | Path) -> dict[str, Any]:
 
 
 def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module], stage: str) -> nn.Module:
-    """A network saved as {"config", "state_dict"} with `write_bundle` (the network-scaled filter, the LSTM
-    update, the association network), built by `build(config)`, given its weights, in eval mode.
+    """A network saved by `save_network` without a scaler (the network-scaled filter, the LSTM update, the
+    association network), built by `build(config)`, given its weights, in eval mode.
 
     InputError naming the file and the `dvc repro` stage that makes it when the file is missing or unreadable,
     or its config or weights do not fit `build`'s network (another network's file, or one saved by another
@@ -108,21 +112,25 @@ def load_network(path: str | Path, build: Callable[[dict[str, Any]], nn.Module],
     return network.eval()
 
 
-def save_model(path: str | Path, network: nn.Module, config: NetworkConfig, scaler: WindowScaler,
-               extras: dict[str, Any] | None = None) -> None:
-    """Write the bundle atomically (`write_bundle`); the same weights give the same bytes."""
-    write_bundle({
-        "format_version": FORMAT_VERSION,
-        "config": config.to_dict(),
-        "scaler": scaler.to_dict(),
-        "extras": extras or {},
-        "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()},
-    }, path)
+def save_network(path: str | Path, network: nn.Module, extras: dict[str, Any] | None = None,
+                 scaler: WindowScaler | None = None) -> None:
+    """Write `network` (its dataclass `config`, its weights) and `extras` as one bundle, atomically
+    (`write_bundle`); the same weights give the same bytes. With the `scaler` of its windows: a thesis
+    network's bundle (`load_model`), else another network's (`load_network`)."""
+    if scaler is None:
+        bundle = {"config": asdict(network.config), "state_dict": network.state_dict(), "extras": extras or {}}
+    else:
+        bundle = {"format_version": FORMAT_VERSION, "config": asdict(network.config), "scaler": scaler.to_dict(),
+                  "extras": extras or {},
+                  "state_dict": {name: tensor.detach().cpu() for name, tensor in network.state_dict().items()}}
+    write_bundle(bundle, path)
 
 
-def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedModel:
-    """Load a bundle written by `save_model`; InputError naming the file and what is wrong: missing or
-    unreadable, another kind, weights that do not fit the architecture or are not all finite."""
+def load_model(path: str | Path, expected_kind: str | None = None,
+               expected_scaler: WindowScaler | None = None) -> LoadedModel:
+    """Load a thesis network's bundle (`save_network` with a scaler); InputError naming the file and what is
+    wrong: missing or unreadable, another kind, weights that do not fit the architecture or are not all finite,
+    a scaler other than `expected_scaler` (the network would be fed differently scaled windows)."""
     path = Path(path)
     bundle = read_bundle(path)
     if bundle.get("format_version") != FORMAT_VERSION:
@@ -138,4 +146,8 @@ def load_model(path: str | Path, expected_kind: str | None = None) -> LoadedMode
                             f"({str(error).splitlines()[0]})") from None
     _finite_weights(path, bundle["state_dict"], f"train_{config.kind}")
     network.eval()
-    return LoadedModel(network, config, WindowScaler.from_dict(bundle["scaler"]), dict(bundle["extras"]))
+    scaler = WindowScaler.from_dict(bundle["scaler"])
+    if expected_scaler is not None and scaler != expected_scaler:
+        raise io.InputError(f"{path}: built with the scaler {scaler}, but params give {expected_scaler}; "
+                            f"retrain it (dvc repro train_{config.kind})")
+    return LoadedModel(network, config, scaler, dict(bundle["extras"]))

@@ -1,23 +1,40 @@
-"""Lightning's MLflow logger for a training stage whose tracking store may go away mid-run.
+"""A training stage's one MLflow run, and Lightning's MLflow logger bound to it, for a store that may go
+away mid-run.
 
-Every write is retried (`experiment_tracking.write_to_store`); when one still fails, a warning names
-the store and the run's later writes are skipped, so that the training, and the writing of its model
-and reports, go on; the stage then raises the failure (`raise_if_failed`, through
-`experiment_tracking.ended_run`): exit 2 naming the URI and the outputs written, never a traceback
-after an hour of training with nothing kept. Lightning ends the logger's run "failed" when training
-raises (`TrainingDiverged`, Ctrl-C): that write, too, is warned about only, and the error goes on.
+`training_run` checks the store (before any training), opens the stage's run (`experiment_tracking.
+stage_run`, so the run spans the work) and yields it with a `TrainingLogger` on it; the run ends
+FAILED if the block raises (even KeyboardInterrupt or TrainingDiverged), else FINISHED.
+
+Every write of the logger is retried (`experiment_tracking.write_to_store`); when one still fails, a
+warning names the store and the run's later writes are skipped, so that the training, and the
+writing of its model and reports, go on; after the block the stage raises the failure
+(`raise_if_failed`): exit 2 naming the URI and the outputs written, never a traceback after an hour
+of training with nothing kept, and the run is ended FAILED. Lightning ends the logger's run "failed"
+when training raises: that write, too, is warned about only, and the error goes on.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lightning.pytorch.loggers import MLFlowLogger
 
-from pipeline.learning.experiment_tracking import TrackingError, write_to_store
+from pipeline.learning.experiment_tracking import (
+    TrackingError,
+    check_tracking_store,
+    stage_run,
+    tracking_uri,
+    write_to_store,
+)
+
+if TYPE_CHECKING:
+    from mlflow import ActiveRun
+
+    from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
 
@@ -60,3 +77,18 @@ class TrainingLogger(MLFlowLogger):
         if self.failure is not None:
             raise TrackingError(f"{self.failure}; {written} written, its MLflow run incomplete: run the stage "
                                 "again once the store is back")
+
+
+@contextmanager
+def training_run(params: Params, stage: str, command: str, tags: dict[str, str], written: str
+                 ) -> Iterator[tuple[ActiveRun, TrainingLogger]]:
+    """The stage's MLflow run (tagged as `experiment_tracking.stage_run` tags it, and with `tags`, `command`
+    its `python -m pipeline` command) and a TrainingLogger bound to it, the store checked first (module
+    docstring); `written` names the outputs the block writes, for the TrackingError after it."""
+    uri = tracking_uri(params.training.tracking_uri)
+    check_tracking_store(uri, params.training.experiment, stage)
+    with stage_run(uri, params, stage, command, tags) as run:
+        # Lightning marks the run FINISHED at the end of each fit; the stage's run ends it again.
+        logger = TrainingLogger(uri, experiment_name=params.training.experiment, run_id=run.info.run_id)
+        yield run, logger
+        logger.raise_if_failed(written)

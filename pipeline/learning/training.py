@@ -1,62 +1,54 @@
-"""Training with Lightning: a LightningModule around each network and a DataModule of in-memory tensors.
+"""The thesis's three networks trained on their windows: the task, its data and its recipe (`kinds`).
 
 The windows are small (tens of thousands of 5-10 step sequences), so the whole material
 lives in memory as tensors and a batch is one fancy-indexing operation, not 128 calls to
 a Dataset and a collate: with networks this small the per-batch overhead would otherwise
 dominate. Lightning's Trainer takes `accelerator`, `devices` and `strategy` from params,
 so the same stage runs on a GPU or several.
+
+`WindowNetworkRecipe` is how `python -m pipeline train --kind <network>` trains one: the
+windows stage's material of that network (its shape and scaler checked against params), MSE
+with Adam (`NetworkModule`), early stopping that keeps the best epoch (`BestValidation`), then
+its hold-out metrics (`model_eval`), its loss curve and its network registered as an MLflow
+model (`pipeline.learning.mlflow_models`).
 """
 
 from __future__ import annotations
 
+import json
 import logging
-import math
-import time
-import warnings
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
 
 import lightning as L
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import torch
 from torch import nn
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
-from pipeline.io import TrainingDiverged
-from pipeline.learning.model_store import first_non_finite
+from pipeline import io
+from pipeline.learning import materials, model_eval
+from pipeline.learning.fit import FitConfig, Fitted, Task, fit
+from pipeline.learning.recipe import Folders, Inputs, Outcome, Trained
+from pipeline.learning.model_store import LoadedModel
 from pipeline.learning.networks import NetworkConfig, build_network
+from pipeline.learning.scaling import PLOT_FEATURES, STATE_FEATURES, WindowScaler
+from pipeline.learning.windows import window_arrays
+from pipeline.params import Params
+from pipeline.sections import subset
 
 log = logging.getLogger("pipeline")
-
-
-class _DropAdvertising(logging.Filter):
-    """Lightning logs tips for its paid services at every Trainer start; they are not ours to print."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return "Tip:" not in record.getMessage()
-
-
-def _lightning_logs_through_root() -> None:
-    """Each Lightning line printed once, in the application's format.
-
-    The `lightning` package adds a handler of its own to its logger and lets records propagate
-    to the root logger too, so an application that configured logging printed every Lightning
-    line twice. Its subpackages follow the convention this restores: when the root logger has
-    handlers, records go there only."""
-    if logging.getLogger().hasHandlers():
-        package_logger = logging.getLogger("lightning")
-        for handler in list(package_logger.handlers):
-            package_logger.removeHandler(handler)
-    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropAdvertising())
-    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
-
-
-_lightning_logs_through_root()
 
 VALIDATION_BATCH = 4096
 
 
 @dataclass(frozen=True)
 class TrainingConfig:
+    """A network's schedule: params `training.<network>` and the shared `training` keys, by name."""
+
     epochs: int
     batch_size: int
     learning_rate: float
@@ -111,37 +103,25 @@ class WindowDataModule(L.LightningDataModule):
 
 
 class NetworkModule(L.LightningModule):
-    """One of the thesis's networks, trained on MSE with Adam."""
+    """One of the thesis's networks, trained on MSE with Adam. Its hyperparameters (logged by Lightning) are
+    the network's config and the optimiser's schedule."""
 
-    def __init__(self, config: dict, learning_rate: float, lr_decay_factor: float = 1.0,
+    def __init__(self, network: nn.Module, learning_rate: float, lr_decay_factor: float = 1.0,
                  lr_decay_patience: int = 0, min_improvement: float = 0.0) -> None:
         super().__init__()
-        self.save_hyperparameters()
-        self.network = build_network(NetworkConfig.from_dict(config))
+        self.save_hyperparameters({"config": network.config.to_dict(), "learning_rate": learning_rate,
+                                   "lr_decay_factor": lr_decay_factor, "lr_decay_patience": lr_decay_patience,
+                                   "min_improvement": min_improvement})
+        self.network = network
         self.learning_rate = learning_rate
         self.loss = nn.MSELoss()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.network(x)
 
-    def on_train_epoch_start(self) -> None:
-        self._loss_sum = torch.zeros((), device=self.device)
-        self._loss_count = 0
-
-    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> torch.Tensor:
-        # The epoch mean is accumulated here and logged once per epoch: self.log on every step
-        # costs more than a whole step of these small networks.
+    def training_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> dict[str, Any]:
         inputs, targets = batch
-        loss = self.loss(self.network(inputs), targets)
-        self._loss_sum += loss.detach() * len(inputs)
-        self._loss_count += len(inputs)
-        return loss
-
-    def epoch_train_loss(self) -> torch.Tensor:
-        return self._loss_sum / max(self._loss_count, 1)
-
-    def on_train_epoch_end(self) -> None:
-        self.log("train_loss", self.epoch_train_loss(), sync_dist=True)
+        return {"loss": self.loss(self.network(inputs), targets), "weight": len(inputs)}
 
     def validation_step(self, batch: tuple[torch.Tensor, torch.Tensor], batch_index: int) -> None:
         inputs, targets = batch
@@ -157,32 +137,6 @@ class NetworkModule(L.LightningModule):
                                                              patience=self.hparams["lr_decay_patience"] - 1,
                                                              threshold=self.hparams["min_improvement"])
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": plateau, "monitor": "val_loss"}}
-
-
-class EpochLog(L.Callback):
-    """Keeps the per-epoch losses and logs a progress line every few seconds."""
-
-    def __init__(self, label: str, every_s: float = 10.0) -> None:
-        self.label, self.every_s = label, every_s
-        self.train_loss: list[float] = []
-        self.validation_loss: list[float] = []
-        self.kept_epoch = 0  # the epoch whose weights the model keeps (1-based), set when training ends
-        self._last = 0.0
-        self._start = 0.0
-
-    def on_train_start(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        self._start = time.monotonic()
-
-    def on_train_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        # Callbacks run before the module's own epoch-end hook, so ask the module directly.
-        self.train_loss.append(float(module.epoch_train_loss()))
-        self.validation_loss.append(float(trainer.callback_metrics.get("val_loss", float("nan"))))
-        now = time.monotonic()
-        epoch = trainer.current_epoch + 1
-        if now - self._last >= self.every_s or epoch == trainer.max_epochs:
-            self._last = now
-            log.info("train %s: epoch %d/%d, train loss %.3g, validation loss %.3g, %.0f s", self.label, epoch,
-                     trainer.max_epochs, self.train_loss[-1], self.validation_loss[-1], now - self._start)
 
 
 class BestValidation(L.Callback):
@@ -218,78 +172,189 @@ class BestValidation(L.Callback):
             module.load_state_dict(self._best_state)
 
 
-class FiniteTraining(L.Callback):
-    """Stops a training, raising TrainingDiverged, as soon as its loss or its weights are not finite.
+def network_task(network: nn.Module, inputs: np.ndarray, targets: np.ndarray, training: TrainingConfig) -> Task:
+    """`network` trained on MSE over (inputs, targets) windows by the schedule `training`."""
+    data = WindowDataModule(inputs, targets, training.batch_size, training.validation_fraction, training.seed)
+    module = NetworkModule(network, training.learning_rate, training.lr_decay_factor, training.lr_decay_patience,
+                           training.early_stopping_min_improvement)
+    config = subset(FitConfig, training, label=f"the {network.config.kind} network", loss_name="train_loss",
+                    validation=len(data.validation_set) > 0, loss_on_device=True, report_every_s=10.0)
+    return Task(module, data, config, (BestValidation(training.early_stopping_patience,
+                                                      training.early_stopping_min_improvement),))
 
-    One NaN or infinite loss (too high a learning rate, an overflow) makes every later Adam step NaN:
-    the weights stay NaN for good, and the run would end as usual with a model of NaN weights written
-    and registered. Lightning's EarlyStopping(check_finite=True) only stops, keeping those weights,
-    and its `detect_anomaly` traces every backward pass. Checked, for the network `network` trained at
-    `learning_rate` (named in the message):
-    - the module's `epoch_train_loss()` (the epoch's mean so far) after every batch when `every_batch`
-      (the filter and association modules, which read their loss on the CPU at every step anyway),
-      else after each validation and at each epoch's end (one read per epoch: no sync per step);
-    - the validation loss `val_loss` after each validation;
-    - every floating-point tensor of the module's state at each epoch's end (the Adam step after the
-      last loss of an epoch may overflow).
-    The exception goes through Lightning's interrupt handling (its loggers finalized "failed") to the
-    stage, which writes nothing, ends its MLflow run FAILED and registers nothing; the command exits 2."""
 
-    def __init__(self, network: str, learning_rate: float, every_batch: bool = False) -> None:
-        self.network, self.learning_rate, self.every_batch = network, learning_rate, every_batch
-
-    def _stop(self, trainer: L.Trainer, what: str, batch: int | None = None) -> None:
-        where = f"epoch {trainer.current_epoch + 1} of {trainer.max_epochs}"
-        if batch is not None:
-            where += f", batch {batch + 1}"
-        raise TrainingDiverged(f"training of {self.network} stopped: {what} at {where} (learning rate "
-                               f"{self.learning_rate:g}); no model written (a lower learning rate may help)")
-
-    def _check_train_loss(self, trainer: L.Trainer, module: L.LightningModule, batch: int | None = None) -> None:
-        loss = float(module.epoch_train_loss())
-        if not math.isfinite(loss):
-            self._stop(trainer, f"the training loss became {loss}", batch)
-
-    def on_train_batch_end(self, trainer: L.Trainer, module: L.LightningModule, outputs: object, batch: object,
-                           batch_index: int) -> None:
-        if self.every_batch:
-            self._check_train_loss(trainer, module, batch_index)
-
-    def on_validation_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        if trainer.sanity_checking or "val_loss" not in trainer.callback_metrics:
-            return
-        self._check_train_loss(trainer, module)  # validation follows the epoch's batches: name the first to go
-        loss = float(trainer.callback_metrics["val_loss"])
-        if not math.isfinite(loss):
-            self._stop(trainer, f"the validation loss became {loss}")
-
-    def on_train_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        self._check_train_loss(trainer, module)
-        tensor = first_non_finite(module.state_dict())
-        if tensor is not None:
-            self._stop(trainer, f"the weight tensor '{tensor}' became non-finite")
+def kept(task: Task, fitted: Fitted) -> Fitted:
+    """`fitted` with the epoch whose weights the network kept: the best one under early stopping."""
+    best = task.callbacks[0]
+    if best.patience:
+        fitted.kept_epoch = best.best_epoch
+    return fitted
 
 
 def train(config: NetworkConfig, inputs: np.ndarray, targets: np.ndarray, training: TrainingConfig,
-          logger: L.pytorch.loggers.Logger | bool = False) -> tuple[NetworkModule, EpochLog]:
-    """Train one network from scratch; deterministic for a given seed on the same machine.
-
-    Returns the module in eval mode (with the best epoch's weights under early stopping) and
-    the per-epoch losses with the epoch whose weights it kept. TrainingDiverged when a loss or
-    a weight goes non-finite (`FiniteTraining`)."""
+          logger: L.pytorch.loggers.Logger | bool = False) -> tuple[NetworkModule, Fitted]:
+    """Train one network from scratch (seeded, then built, then fitted: as the stage does); deterministic
+    for a given seed on the same machine. The module in eval mode (with the best epoch's weights under early
+    stopping) and its per-epoch losses. TrainingDiverged when a loss or a weight goes non-finite."""
     torch.set_num_threads(training.threads)
     L.seed_everything(training.seed, workers=True, verbose=False)
-    data = WindowDataModule(inputs, targets, training.batch_size, training.validation_fraction, training.seed)
-    module = NetworkModule(config.to_dict(), training.learning_rate, training.lr_decay_factor,
-                           training.lr_decay_patience, training.early_stopping_min_improvement)
-    history = EpochLog(config.kind)
-    best = BestValidation(training.early_stopping_patience, training.early_stopping_min_improvement)
-    callbacks: list[L.Callback] = [history, FiniteTraining(f"the {config.kind} network", training.learning_rate), best]
-    trainer = L.Trainer(max_epochs=training.epochs, accelerator=training.accelerator, devices=training.devices,
-                        strategy=training.strategy, logger=logger, callbacks=callbacks, deterministic=training.deterministic,
-                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-                        num_sanity_val_steps=0, **({} if len(data.validation_set) else {"limit_val_batches": 0}))
-    trainer.fit(module, datamodule=data)
-    module.eval()
-    history.kept_epoch = best.best_epoch if training.early_stopping_patience else len(history.train_loss)
-    return module, history
+    task = network_task(build_network(config), inputs, targets, training)
+    return task.module, kept(task, fit(*task, logger=logger))
+
+
+def _read_material(path: Path) -> pa.Table:
+    if not path.is_file():
+        raise io.InputError(f"{path}: file not found (run the windows stage)")
+    try:
+        return pq.read_table(path)
+    except (pa.ArrowInvalid, OSError) as error:
+        raise io.InputError(f"{path}: not a readable Parquet file ({error})") from None
+
+
+def _arrays(table: pa.Table, path: Path, prefix: str, features: tuple[str, ...], steps: int) -> np.ndarray:
+    for name in ("window_id", "step", *(f"{prefix}_{f}" for f in features)):
+        if name not in table.column_names:
+            raise io.InputError(f"{path}: column '{name}' is missing")
+    values = window_arrays(table, prefix, features) if table.num_rows else np.empty((0, steps, len(features)))
+    if values.shape[1] != steps:
+        raise io.InputError(f"{path}: windows of {values.shape[1]} steps, params expect {steps}; "
+                            "rerun the windows stage")
+    if not np.isfinite(values).all():
+        raise io.InputError(f"{path}: non-finite values in the '{prefix}_*' columns")
+    return values
+
+
+def training_pairs(kind: str, path: Path, params: Params) -> tuple[np.ndarray, np.ndarray]:
+    """Network inputs and targets of a material, shapes checked against params."""
+    table = _read_material(path)
+    cfg = params.windows
+    if kind == "filter":
+        inputs = _arrays(table, path, "in", PLOT_FEATURES, cfg.filter_length)
+        outputs = _arrays(table, path, "out", PLOT_FEATURES, cfg.filter_length)
+        return inputs, outputs[:, -params.training.networks["filter"].output_steps:]
+    if kind == "predictor":
+        states = _arrays(table, path, "state", STATE_FEATURES, cfg.predictor_inputs + 1)
+        keep = [STATE_FEATURES.index(name) for name in PLOT_FEATURES]
+        return states[:, :-1], states[:, 2:, keep]
+    inputs = _arrays(table, path, "in", PLOT_FEATURES, cfg.autoencoder_length)
+    return inputs, inputs
+
+
+def network_config(kind: str, params: Params) -> NetworkConfig:
+    """The network `kind` of params `training.<kind>` (its layers, `output_steps`) on the windows of params."""
+    cfg = params.windows
+    steps = {"filter": cfg.filter_length, "predictor": cfg.predictor_inputs, "autoencoder": cfg.autoencoder_length}
+    features = len(STATE_FEATURES) if kind == "predictor" else len(PLOT_FEATURES)
+    return subset(NetworkConfig, params.training.networks[kind], kind=kind, input_steps=steps[kind],
+                  input_features=features, output_features=len(PLOT_FEATURES))
+
+
+def training_config(kind: str, params: Params) -> TrainingConfig:
+    return subset(TrainingConfig, params.training.networks[kind], params.training)
+
+
+def window_scaler(layout: str, params: Params, scalers_path: Path) -> WindowScaler:
+    """The scaler the windows were made with (`layout`: "plots" or "states"); it must be the one params describe
+    now."""
+    if not scalers_path.is_file():
+        raise io.InputError(f"{scalers_path}: file not found (run the windows stage)")
+    stored = WindowScaler.from_dict(json.loads(scalers_path.read_text())[layout])
+    expected = materials.scalers(params.windows)[layout]
+    if stored != expected:
+        raise io.InputError(f"{scalers_path}: windows were scaled with {stored}, params now give {expected}; "
+                            "rerun the windows stage")
+    return stored
+
+
+def _holdout_metrics(kind: str, model: LoadedModel, params: Params, windows_dir: Path) -> tuple[dict, dict]:
+    """Hold-out metrics (for reports and MLflow) and the extras to store with the model."""
+    kalman = model_eval.KalmanReference(params.training.kalman_acceleration_std_mps2,
+                                        params.training.kalman_truth_sigma_m)
+    if kind == "autoencoder":
+        path = windows_dir / "autoencoder_calibration.parquet"
+        table = _read_material(path)
+        scaled = _arrays(table, path, "in", PLOT_FEATURES, params.windows.autoencoder_length)
+        labels = table.filter(pa.compute.equal(table.column("step"), 0)).column("label").to_numpy(
+            zero_copy_only=False).astype(bool)
+        errors = model_eval.reconstruction_errors(model, scaled)
+        threshold, rejected = model_eval.autoencoder_threshold(errors, labels)
+        return (model_eval.evaluate_autoencoder(errors, labels, threshold, rejected),
+                {"threshold": threshold, "false_windows_rejected": rejected})
+    holdout = io.read_parquet(windows_dir / "holdout.parquet", materials.HOLDOUT_SCHEMA)
+    plots = model_eval.holdout_plots(holdout, params.radar)
+    if kind == "filter":
+        return model_eval.evaluate_filter(model, plots, params.radar, kalman), {}
+    return model_eval.evaluate_predictor(model, plots, kalman), {}
+
+
+def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str) -> bytes:
+    """PNG: training and validation loss per epoch (MSE on scaled windows), log scale."""
+    from pipeline.figure_png import png  # matplotlib: only when a stage draws the curve
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(6.4, 4.0))
+    epochs = np.arange(1, len(train_loss) + 1)
+    axis.plot(epochs, train_loss, label="training")
+    if not np.all(np.isnan(validation_loss)):
+        axis.plot(epochs, validation_loss, label="validation")
+    axis.set_yscale("log")
+    axis.set_xlabel("epoch")
+    axis.set_ylabel("MSE (scaled)")
+    axis.set_title(f"{kind} network")
+    axis.legend()
+    figure.tight_layout()
+    return png(figure)
+
+
+class WindowNetworkRecipe:
+    """Stage `train_<network>` (`kinds.Recipe`): writes `models/<network>.pt` (`model_store.load_model`),
+    `reports/models/<network>.json` (hold-out metrics and the epochs), `reports/loss/<network>.csv` and
+    `reports/loss_<network>.png`. Everything that can fail on bad input (material shape, scaler mismatch,
+    the hold-out's file) is checked before training."""
+
+    def __init__(self, kind: str, scaler: str) -> None:
+        self.kind, self.scaler = kind, scaler
+
+    def knobs(self, params: Params) -> Any:
+        return params.training.networks[self.kind]
+
+    def logged(self, params: Params) -> dict[str, Any]:
+        shared = {key: value for key, value in asdict(params.training).items() if key != "networks"}
+        return {**{f"network.{k}": v for k, v in asdict(self.knobs(params)).items()},
+                **{f"training.{k}": v for k, v in shared.items()},
+                **{f"windows.{k}": v for k, v in asdict(params.windows).items()}}
+
+    def data(self, params: Params, folders: Folders) -> Inputs:
+        material = folders.windows / f"{self.kind}.parquet"
+        inputs, targets = training_pairs(self.kind, material, params)
+        evaluation = folders.windows / ("autoencoder_calibration.parquet" if self.kind == "autoencoder"
+                                        else "holdout.parquet")
+        if not evaluation.is_file():
+            raise io.InputError(f"{evaluation}: file not found (run the windows stage)")
+        scaler = window_scaler(self.scaler, params, folders.windows / "scalers.json")
+        return Inputs(network_config(self.kind, params), f"{len(inputs)} windows", material, (inputs, targets), scaler)
+
+    def build(self, params: Params, inputs: Inputs) -> nn.Module:
+        return build_network(inputs.data)
+
+    def task(self, network: nn.Module, inputs: Inputs, params: Params) -> Task:
+        return network_task(network, *inputs.windows, training_config(self.kind, params))
+
+    def holdout(self, trained: Trained) -> Outcome:
+        history = kept(trained.task, trained.fitted)
+        model = LoadedModel(trained.network, trained.network.config, trained.inputs.scaler)
+        metrics, extras = _holdout_metrics(self.kind, model, trained.params, trained.folders.windows)
+        metrics["epochs_trained"] = len(history.train_loss)
+        metrics["kept_epoch"] = history.kept_epoch
+        metrics["kept_validation_loss"] = history.validation_loss[history.kept_epoch - 1]
+        metrics["final_train_loss"] = history.train_loss[-1]
+        metrics["final_validation_loss"] = history.validation_loss[-1]
+        loss_csv = "epoch,train_loss,validation_loss\n" + "".join(
+            f"{epoch},{a:.8g},{b:.8g}\n" for epoch, (a, b) in
+            enumerate(zip(history.train_loss, history.validation_loss), start=1))
+        reports = trained.folders.reports
+        figure, report = reports / f"loss_{self.kind}.png", reports / "models" / f"{self.kind}.json"
+        return Outcome(extras, {figure: loss_curve(history.train_loss, history.validation_loss, self.kind),
+                                reports / "loss" / f"{self.kind}.csv": loss_csv, report: metrics},
+                       (figure, report), {key: float(value) for key, value in metrics.items()},
+                       f"train {self.kind}: " + ", ".join(f"{k} {v:.4g}" for k, v in metrics.items()))

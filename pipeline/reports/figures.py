@@ -118,22 +118,6 @@ def linearity_histograms(materials: dict[str, tuple[np.ndarray, np.ndarray]], bi
     return png(figure)
 
 
-def loss_curve(train_loss: list[float], validation_loss: list[float], kind: str) -> bytes:
-    """Training and validation loss per epoch (MSE on scaled windows), log scale."""
-    figure, axis = plt.subplots(figsize=(6.4, 4.0))
-    epochs = np.arange(1, len(train_loss) + 1)
-    axis.plot(epochs, train_loss, label="training")
-    if not np.all(np.isnan(validation_loss)):
-        axis.plot(epochs, validation_loss, label="validation")
-    axis.set_yscale("log")
-    axis.set_xlabel("epoch")
-    axis.set_ylabel("MSE (scaled)")
-    axis.set_title(f"{kind} network")
-    axis.legend()
-    figure.tight_layout()
-    return png(figure)
-
-
 def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: Params, run_name: str,
                      management: TrackManagement) -> bytes:
     """One scenario: the true route, target and false plots near it, and the confirmed tracks' states

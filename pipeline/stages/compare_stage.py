@@ -35,7 +35,8 @@ from pipeline.filters.classical_filters import FilterSettings, load_settings
 from pipeline.filters.gradient_tuning import TunedFilter
 from pipeline.filters.torch_filters import FilterSpec
 from pipeline.geometry import geodesy
-from pipeline.learning import filter_holdout, kalman_net, lstm_update, materials, model_eval, windows
+from pipeline.learning import filter_holdout, materials, model_eval, windows
+from pipeline.learning.kinds import KINDS
 from pipeline.learning.scaling import STATE_FEATURES
 from pipeline.params import Params
 from pipeline.reports import figures, fusion_tables, site_report
@@ -103,15 +104,14 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
 
 
 
-def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings]) -> dict[str, filter_holdout.FilterRun]:
+def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings], params: Params
+                   ) -> dict[str, filter_holdout.FilterRun]:
     """The LSTM update (first: its dropout masks are the first drawn, as in its stage), the network-scaled
     filter, each gradient-tuned filter and each Nelder-Mead tuned one, by label."""
-    lstm_path = models_dir / "lstm_update.pt"
-    if not lstm_path.is_file():
-        raise io.InputError(f"{lstm_path}: file not found (run `dvc repro train_lstm_update`)")
-    network = kalman_net.load(models_dir / "kalman_net.pt")
+    estimator = KINDS["lstm_update"].load_from(models_dir, params)
+    network = KINDS["kalman_net"].load_from(models_dir, params)
     gradient = _read_json(models_dir / "kalman_gradient.json", "train_kalman_net")
-    runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": lstm_update.load(lstm_path),
+    runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": estimator,
                                                  f"network-scaled {network.config.base}": network}
     for kind, values in gradient.items():
         runs[f"{GRADIENT_LABELS[kind]}, gradient-tuned"] = TunedFilter.from_dict(values)
@@ -144,7 +144,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         if networks[kind]["holdout_windows"] != held[key]:
             raise io.InputError(f"{holdout_path}: {held[key]} {kind} windows, but reports/models.json scored the "
                                 f"{kind} network on {networks[kind]['holdout_windows']}; rerun the train stages")
-    estimators = scaled_filters(models_dir, filters)
+    estimators = scaled_filters(models_dir, filters, params)
     u = params.lstm_update
     torch.manual_seed(u.seed)  # the LSTM update's dropout masks, as in its stage
     detailed = filter_holdout.compare_detailed(holdout, params.radar, params.windows.filter_length, estimators,

@@ -1,44 +1,40 @@
-"""What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the trained networks,
-each ready for fast batch inference, the tuned classical filters by kind (cv, ca, imm), the
-LSTM-update estimator (`pipeline.learning.lstm_update`) and the network-scaled filter (`pipeline.learning.kalman_net`)."""
+"""What a run's trackers need, loaded by need (`pipeline.tracker.loading`): the pieces by name, as
+`pipeline.learning.kinds.PIECES` names them (`models["predictor"]`, `models["kalman_tuned"]`, the
+tuned classical filters by kind, `models["lstm_update"]`, `models["kalman_net"]`, ...), each ready to use,
+and the thesis's networks also as batch functions for fast inference."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Mapping
-
-from pipeline.filters.classical_filters import FilterSettings
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from pipeline.learning.inference import BatchNetwork
-    from pipeline.learning.kalman_net import KalmanNet
-    from pipeline.learning.lstm_update import LSTMUpdate
-    from pipeline.learning.model_store import LoadedModel
 
 
 @dataclass
 class Models:
-    """Each piece is None (the networks) or empty (the filters) when no method of the run needs it.
-    `runnable` holds each loaded network as a batch function (`pipeline.learning.inference`, on `backend`)."""
+    """`pieces`: the loaded pieces by name; a method's `needs` name the ones it reads (`models[piece]`).
+    `runnable` holds each thesis network (a `model_store.LoadedModel`) as a batch function
+    (`pipeline.learning.inference`, on `backend`)."""
 
-    predictor: LoadedModel | None = None
-    filter: LoadedModel | None = None
-    autoencoder: LoadedModel | None = None
-    filters: Mapping[str, FilterSettings] = field(default_factory=dict)
+    pieces: Mapping[str, Any] = field(default_factory=dict)
     backend: str = "onnx"
-    lstm_update: LSTMUpdate | None = None
-    kalman_net: KalmanNet | None = None  # the network-scaled filter (issue 17), in eval mode
     runnable: dict[str, BatchNetwork] = field(init=False, repr=False)
 
+    def __getitem__(self, piece: str) -> Any:
+        if piece not in self.pieces:
+            raise KeyError(f"{piece}: not loaded (no method of the run needs it)")
+        return self.pieces[piece]
+
     def __post_init__(self) -> None:
-        loaded = {kind: model for kind, model in (("predictor", self.predictor), ("filter", self.filter),
-                                                  ("autoencoder", self.autoencoder)) if model is not None}
+        networks = {name: model for name, model in self.pieces.items() if hasattr(model, "scaler")}
         self.runnable = {}
-        if loaded or self.lstm_update is not None:
+        if networks:
             import torch
 
-            torch.set_num_threads(1)  # the tracker's batches are a few windows: threads only add contention
-        if loaded:
             from pipeline.learning.inference import BatchNetwork  # imports torch: only when a network is loaded
-            self.runnable = {kind: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
-                                                self.backend) for kind, model in loaded.items()}
+            torch.set_num_threads(1)  # the tracker's batches are a few windows: threads only add contention
+            self.runnable = {name: BatchNetwork(model.network, model.config.input_steps, model.config.input_features,
+                                                self.backend) for name, model in networks.items()}

@@ -33,7 +33,7 @@ class NetworkEstimator:
     pairwise = False
 
     def __init__(self, models: Models) -> None:
-        self.predictor, self.filter = models.predictor, models.filter
+        self.predictor, self.filter = models["predictor"], models["filter"]
         self._run_predictor, self._run_filter = models.runnable["predictor"], models.runnable["filter"]
         self.inputs = self.predictor.config.input_steps
         self.filter_plots = self.filter.config.input_steps

@@ -7,7 +7,8 @@ given the true association and is run only as an evaluation reference), the piec
 classical filters `kalman_tuned`, the network-scaled filter `kalman_net`), and `compose`, which
 builds its tracker (`pipeline.tracker.run.Composition`) from the loaded pieces, the tracker
 params, the window (metres: the VIA window, the young-track radius of every method) and a seed
-(MIA's sampling).
+(MIA's sampling). A compose function reads each piece as `models[name]`
+(`pipeline.tracker.models`; the pieces' files and loaders are `pipeline.learning.kinds.PIECES`).
 
 Params validation, the evaluate and compare stages, the tables and `track` read the names from
 here; nothing else lists methods. Adding a method is one entry here (and the modules of its
@@ -117,7 +118,7 @@ def _mia(models: "Models", params: "TrackerParams", window_m: float, seed: Seed)
 def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     from pipeline.tracker.network_gates import AutoencoderGate
     return _composition("ae", _network_estimator(models),
-                        AutoencoderGate(models.autoencoder, models.runnable["autoencoder"]),
+                        AutoencoderGate(models["autoencoder"], models.runnable["autoencoder"]),
                         params.young_track_plots_ae, window_m, params, learned=(False, True))
 
 
@@ -127,8 +128,8 @@ def _classical(name: str, kind: str, global_nearest: bool):
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.gate import ChiSquareGate
         from pipeline.tracker.kalman import KalmanEstimator
-        return _composition(name, KalmanEstimator(models.filters[kind]), ChiSquareGate(params.kalman_gate_probability),
-                            params.young_track_plots, window_m, params,
+        return _composition(name, KalmanEstimator(models[TUNED_FILTERS][kind]),
+                            ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None)
     return compose
 
@@ -146,7 +147,7 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
     gate = BoundedChiSquareGate(params.kalman_gate_probability, params.lstm_update_gate_m)
     young_gate = RadiusFloorGate(gate, window_m) if params.young_window_fallback else gate
-    return _composition("lstm_update", LSTMUpdateEstimator(models.lstm_update, seed), gate,
+    return _composition("lstm_update", LSTMUpdateEstimator(models[LSTM_UPDATE], seed), gate,
                         params.young_track_plots, window_m, params, young_gate=young_gate, learned=(True, True))
 
 
@@ -155,7 +156,7 @@ def _kalman_net(name: str, global_nearest: bool):
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
-        estimator = KalmanNetEstimator(models.kalman_net)
+        estimator = KalmanNetEstimator(models[KALMAN_NET])
         return _composition(name, estimator, PlotScaledGate(estimator, params.kalman_gate_probability),
                             params.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None, learned=(False, True))
@@ -167,7 +168,7 @@ def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Se
     from pipeline.tracker.assigner import TrueAssociation
     from pipeline.tracker.gate import AcceptAll
     from pipeline.tracker.kalman import KalmanEstimator
-    return _composition("oracle", KalmanEstimator(models.filters["imm"]), AcceptAll(), 1, window_m, params,
+    return _composition("oracle", KalmanEstimator(models[TUNED_FILTERS]["imm"]), AcceptAll(), 1, window_m, params,
                         assigner=TrueAssociation(), prefilter_m=float("inf"))
 
 
