@@ -17,7 +17,7 @@ from typing import Any, Iterator, Mapping
 
 import yaml
 
-from pipeline.association.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.association.registry import NAMES as ASSOCIATION_METHODS
 from pipeline.association.track_fusion import CRITERIA as FUSION_CRITERIA
 from pipeline.tracker import registry
 
