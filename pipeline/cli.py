@@ -10,7 +10,7 @@ import sys
 from datetime import date
 from pathlib import Path
 
-from pipeline.association.track_association import METHODS as ASSOCIATION_METHODS
+from pipeline.association.registry import NAMES as ASSOCIATION_METHODS
 from pipeline.filters.tuning import TuningError
 from pipeline.io import InputError, TrainingDiverged
 from pipeline.learning.experiment_tracking import TrackingError

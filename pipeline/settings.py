@@ -2,7 +2,7 @@
 
 `pipeline.params` is the ground floor and imports nothing of the package, so it cannot know which
 tracking methods, track management rules, track-to-track associators or fusion criteria exist. Each
-owner checks its own names (`check_params`: the tracker's registry, `track_association`,
+owner checks its own names (`check_params`: the tracker's registry, the association registry,
 `track_fusion`), and this module, above them all, hands those checks to the parser. Every command,
 benchmark and test that reads params reads them through here.
 """
@@ -12,11 +12,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from pipeline.association import track_association, track_fusion
+from pipeline.association import registry as associators
+from pipeline.association import track_fusion
 from pipeline.params import ParamError, Params, load_params_tree, parse_tree
 from pipeline.tracker import registry
 
-NAME_CHECKS = (registry.check_params, track_association.check_params, track_fusion.check_params)
+NAME_CHECKS = (registry.check_params, associators.check_params, track_fusion.check_params)
 
 
 def parse_params(tree: Mapping[str, Any]) -> Params:

@@ -20,7 +20,7 @@ from scipy.stats import chi2
 
 from pipeline import cli
 from pipeline.association import association_net
-from pipeline.association.track_association import METHODS
+from pipeline.association.registry import ASSOCIATORS
 from pipeline.bench import association_report
 from pipeline.geometry import geodesy
 from pipeline.learning.fit import fit
@@ -99,7 +99,7 @@ def associate(users: dict[str, Path], models: Path, out: Path, method: str = "st
                      "--pairs", str(out / "pairs.parquet"), "--fused", str(out / "fused.parquet")])
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", ASSOCIATORS)
 def test_every_method_pairs_the_two_radars_tracks_of_one_aircraft(users, models, tmp_path, method):
     """One confirmed track per user, the same aircraft: at every common time where both have a state, the
     one pair; the fused picture holds one fused row per pair, between the two tracks, and no unpaired rows

@@ -7,7 +7,7 @@ import sqlite3
 from pathlib import Path
 
 from pipeline.association import association_net
-from pipeline.bench.association_report import METHODS
+from pipeline.association.registry import ASSOCIATORS
 from tests.project import run_pipeline, tiny_params_tree, write_params
 
 
@@ -19,7 +19,7 @@ def test_stage_writes_model_report_picture_and_one_mlflow_run(tmp_path: Path) ->
     assert association_net.load(tmp_path / "models" / "association_net.pt").config.size == 32
     report = json.loads((tmp_path / "reports" / "association.json").read_text())
     assert sorted(report["by_bias_m"]) == ["0", "200"]
-    assert sorted(report["seed_setting"]["methods"]) == sorted(METHODS)
+    assert sorted(report["seed_setting"]["methods"]) == sorted(ASSOCIATORS)
     assert report["by_bias_m"]["0"]["methods"]["statistical"]["accuracy"] == 1.0
     assert (tmp_path / "reports" / "association_bias.png").read_bytes().startswith(b"\x89PNG")
     with sqlite3.connect(tmp_path / "mlflow.db") as store:

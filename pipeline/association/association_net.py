@@ -29,6 +29,7 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import DataLoader
 
+from pipeline.association.associator import Decision, TrackSet
 from pipeline.association.scene_tensor import pair_features, scene_tensor
 from pipeline.learning import model_store
 from pipeline.learning.fit import FitConfig, Task
@@ -169,6 +170,18 @@ def associate_network(model: AssociationNet, states1: np.ndarray, covariances1: 
     """Pairs (K, 2) the trained network decides for tracks at a common time (shapes as `scene_inputs`), any
     number of tracks (`scene_probabilities`)."""
     return decide(scene_probabilities(model, states1, covariances1, states2, covariances2), threshold)
+
+
+@dataclass(frozen=True)
+class NetworkAssociator:
+    """`associate_network` at the current common time: the pairs the trained `model` decides at `threshold`."""
+
+    model: AssociationNet
+    threshold: float
+    common_times = 1
+
+    def associate_tracks(self, tracks1: TrackSet, tracks2: TrackSet) -> Decision:
+        return Decision(associate_network(self.model, *tracks1.current, *tracks2.current, self.threshold), None)
 
 
 class FreshScenes(L.LightningDataModule):

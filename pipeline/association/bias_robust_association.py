@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipeline.association.associator import Decision, TrackSet
 from pipeline.association.track_association import assign, check_pair_of_radars, gate, statistical_distances
 
 
@@ -217,3 +218,21 @@ def associate_bias_robust(states1: np.ndarray, covariances1: np.ndarray, states2
                               vote_radius_m, max_iterations, max_time_offset_s)
     significant = joint.time_offset_s ** 2 > gate(gate_probability, 1) * joint.time_offset_variance_s2
     return joint if significant and len(joint.pairs) > len(pairs) else result
+
+
+@dataclass(frozen=True)
+class BiasRobustAssociator:
+    """`associate_bias_robust` at the current common time, with its offset, clock offset and the offset's
+    covariance in the decision."""
+
+    gate_probability: float
+    max_bias_m: float
+    vote_radius_m: float
+    max_iterations: int
+    max_time_offset_s: float
+    common_times = 1
+
+    def associate_tracks(self, tracks1: TrackSet, tracks2: TrackSet) -> Decision:
+        result = associate_bias_robust(*tracks1.current, *tracks2.current, self.gate_probability, self.max_bias_m,
+                                       self.vote_radius_m, self.max_iterations, self.max_time_offset_s)
+        return Decision(result.pairs, result.bias_m, result.time_offset_s, result.bias_covariance_m2)

@@ -2,7 +2,8 @@
 fused air picture that `python -m pipeline associate` writes.
 
 Association reads the horizontal state [east, north, v_east, v_north] (the seed's and the trained network's;
-heights of surveillance radars are poor and the chi-square gates of params `association` are for d = 4):
+heights of surveillance radars are poor and the chi-square gates of params `association` are for d = 4), each
+method an associator (`associator.Associator`) of the registry (`pipeline.association.registry`):
 - `statistical`: `track_association.associate_statistical` (chi-square gate, 2-D assignment);
 - `double_threshold`: `track_association.associate_double_threshold` over the last track_points - 1 common
   times (params `association`), the tracks present at all of them; none at the first track_points - 2 times;
@@ -25,21 +26,18 @@ geodetic position, ENU velocity and ECEF position covariance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 
 import numpy as np
 import pyarrow as pa
 
 from pipeline import io
-from pipeline.association import association_net
+from pipeline.association import association_net, registry
 from pipeline.association.association_memory import horizontal, with_memory
-from pipeline.association.bias_robust_association import associate_bias_robust, registered
+from pipeline.association.associator import Decision, TrackSet
+from pipeline.association.bias_robust_association import registered
 from pipeline.association.common_time_states import Frame, Snapshot
-from pipeline.association.track_association import (
-    associate_double_threshold,
-    associate_statistical,
-    statistical_distances,
-)
+from pipeline.association.track_association import statistical_distances
 from pipeline.association.track_fusion import fuse_pairs
 from pipeline.geometry import geodesy
 from pipeline.params import Association
@@ -73,62 +71,43 @@ FUSED_SCHEMA = io.schema(
 )
 
 
-@dataclass(frozen=True)
-class Decision:
-    """One common time's pairs (K, 2) [first user's row, second user's row], the second user's estimated
-    offset (2,) east, north m and clock offset (s, its time stamps that much late) (each None unless bias_robust)."""
+def _recent(snapshots: list[Snapshot], index: int, count: int) -> list[Snapshot]:
+    """Snapshot `index` and those before it of the same scenario, `count` at most (a scenario's track ids are
+    its own recording's)."""
+    start = index
+    scenario = snapshots[index].scenario_id
+    while index - start + 1 < count and start > 0 and snapshots[start - 1].scenario_id == scenario:
+        start -= 1
+    return snapshots[start:index + 1]
 
-    pairs: np.ndarray
-    bias_m: np.ndarray | None
-    time_offset_s: float | None = None
 
-
-def _double_threshold(history: list[Snapshot], association: Association) -> np.ndarray:
-    """Pairs (rows of the last snapshot) of the tracks present at every snapshot of `history`."""
-    rows = []
+def track_sets(history: list[Snapshot]) -> tuple[TrackSet, TrackSet]:
+    """Each user's tracks at the common times of `history` (the current last), horizontal (`associator.TrackSet`)."""
+    sets = []
     for user in (0, 1):
-        common = history[0].ids[user]
-        for snapshot in history[1:]:
-            common = np.intersect1d(common, snapshot.ids[user])
-        rows.append([np.searchsorted(snapshot.ids[user], common) for snapshot in history])
-    stacked = [np.stack([horizontal(s.states[u][r], s.covariances[u][r])[part] for s, r in zip(history, rows[u])])
-               for u in (0, 1) for part in (0, 1)]
-    found = associate_double_threshold(*stacked, association.gate_probability, association.double_threshold_hits)
-    last = [rows[u][-1] for u in (0, 1)]
-    return np.stack([last[0][found[:, 0]], last[1][found[:, 1]]], axis=1).reshape(-1, 2)
+        parts = [horizontal(snapshot.states[user], snapshot.covariances[user]) for snapshot in history]
+        sets.append(TrackSet(tuple(snapshot.ids[user] for snapshot in history), tuple(x for x, _ in parts),
+                             tuple(p for _, p in parts)))
+    return sets[0], sets[1]
 
 
 def decide(snapshots: list[Snapshot], method: str, association: Association,
            model: association_net.AssociationNet | None, keep_probability: float) -> list[Decision]:
-    """Each snapshot's pairs by `method` (module docstring), continued with memory (`association_memory`, keep gate
-    at `keep_probability`); `model` is needed by `network` only."""
-    history_length = association.track_points - 1
+    """Each snapshot's pairs by `method`'s associator (`pipeline.association.registry`, module docstring), given
+    as many of the latest common times of the snapshot's scenario as it reads, continued with memory
+    (`association_memory`, keep gate at `keep_probability`); no pair where a user has no track. `model` is read
+    by `network` only."""
+    associator = registry.associator(method, association, model)
     decisions = []
     for index, snapshot in enumerate(snapshots):
-        x1, p1 = horizontal(snapshot.states[0], snapshot.covariances[0])
-        x2, p2 = horizontal(snapshot.states[1], snapshot.covariances[1])
-        bias = offset = None
-        if not len(x1) or not len(x2):
-            pairs = np.zeros((0, 2), dtype=np.int64)
-        elif method == "statistical":
-            pairs = associate_statistical(x1, p1, x2, p2, association.gate_probability)
-        elif method == "double_threshold":
-            history = snapshots[max(index - history_length + 1, 0):index + 1]
-            if len(history) < history_length or any(s.scenario_id != snapshot.scenario_id for s in history):
-                pairs = np.zeros((0, 2), dtype=np.int64)
-            else:
-                pairs = _double_threshold(history, association)
-        elif method == "bias_robust":
-            result = associate_bias_robust(x1, p1, x2, p2, association.gate_probability, association.max_bias_m,
-                                           association.vote_radius_m, association.max_iterations,
-                                           association.max_time_offset_s)
-            pairs, bias, offset = result.pairs, result.bias_m, result.time_offset_s
-        else:
-            pairs = association_net.associate_network(model, x1, p1, x2, p2, association.decision_threshold)
-        decisions.append(Decision(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), bias, offset))
+        if not len(snapshot.ids[0]) or not len(snapshot.ids[1]):
+            decisions.append(Decision(np.zeros((0, 2), dtype=np.int64), None))
+            continue
+        decision = associator.associate_tracks(*track_sets(_recent(snapshots, index, associator.common_times)))
+        decisions.append(replace(decision, pairs=np.asarray(decision.pairs, dtype=np.int64).reshape(-1, 2)))
     continued = with_memory(snapshots, [d.pairs for d in decisions], [d.bias_m for d in decisions], keep_probability,
                             [d.time_offset_s for d in decisions])
-    return [Decision(pairs, decision.bias_m, decision.time_offset_s) for pairs, decision in zip(continued, decisions)]
+    return [replace(decision, pairs=pairs) for pairs, decision in zip(continued, decisions)]
 
 
 def _scenario_column(scenario_id: int, count: int) -> pa.Array:

@@ -20,27 +20,24 @@ covariances (N, d, d). A pair is a row [i, j]: radar 1's track i with radar 2's 
   time a pair passes; a second threshold M declares the pair associated when it passed at least M
   of the L times; conflicts are settled by an assignment on the pass counts (most passes, then the
   smallest summed statistic).
+
+`StatisticalAssociator` and `DoubleThresholdAssociator` are the two as associators (`associator.Associator`,
+entries of `pipeline.association.registry`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
+from pipeline.association.associator import Decision, TrackSet
 from pipeline.io import InputError
-from pipeline.params import ParamError, Params
 
 STATE_SIZES = (4, 6)   # [e, n, ve, vn] or [e, n, u, ve, vn, vu]
-METHODS = ("statistical", "double_threshold", "bias_robust", "network")  # every way to associate two radars' tracks
 FORBIDDEN = 1e12       # assignment cost of a gated-out pair (never chosen while a gated pair is left)
-
-
-def check_params(params: Params) -> None:
-    """The fusion stage's association methods: distinct names of METHODS, at least one (ParamError)."""
-    methods = list(params.fusion.methods)
-    if not methods or not set(methods) <= set(METHODS) or len(set(methods)) != len(methods):
-        raise ParamError(f"fusion.methods = {methods!r}: must list distinct methods of {METHODS}")
 
 
 class TrackInputError(InputError):
@@ -161,3 +158,42 @@ def associate_double_threshold(states1: np.ndarray, covariances1: np.ndarray, st
     # most passes first; among equal counts the smallest summed statistic (scaled below one pass)
     cost = -passes + summed / (summed.max() + 1.0) if summed.size else summed
     return assign(cost, passes >= hits)
+
+
+@dataclass(frozen=True)
+class StatisticalAssociator:
+    """`associate_statistical` at the current common time."""
+
+    gate_probability: float
+    common_times = 1
+
+    def associate_tracks(self, tracks1: TrackSet, tracks2: TrackSet) -> Decision:
+        return Decision(associate_statistical(*tracks1.current, *tracks2.current, self.gate_probability), None)
+
+
+@dataclass(frozen=True)
+class DoubleThresholdAssociator:
+    """`associate_double_threshold` over the latest `common_times` common times, among the tracks present at all
+    of them (by id); no pair while fewer common times are given (a scenario's first common_times - 1)."""
+
+    gate_probability: float
+    hits: int
+    common_times: int
+
+    def associate_tracks(self, tracks1: TrackSet, tracks2: TrackSet) -> Decision:
+        if len(tracks1.ids) < self.common_times:
+            return Decision(np.zeros((0, 2), dtype=np.int64), None)
+        rows = [_rows_throughout(tracks.ids) for tracks in (tracks1, tracks2)]
+        stacked = [np.stack([values[r] for values, r in zip(part, rows[user])])
+                   for user, tracks in enumerate((tracks1, tracks2)) for part in (tracks.states, tracks.covariances)]
+        found = associate_double_threshold(*stacked, self.gate_probability, self.hits)
+        last = [rows[0][-1], rows[1][-1]]
+        return Decision(np.stack([last[0][found[:, 0]], last[1][found[:, 1]]], axis=1).reshape(-1, 2), None)
+
+
+def _rows_throughout(ids: tuple[np.ndarray, ...]) -> list[np.ndarray]:
+    """Per common time, the rows of the tracks present at every one of them (ids ascending at each)."""
+    common = ids[0]
+    for later in ids[1:]:
+        common = np.intersect1d(common, later)
+    return [np.searchsorted(at, common) for at in ids]

@@ -14,6 +14,7 @@ The "seed setting" row draws each scene's bias length uniformly in `train_bias_m
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import matplotlib
 
@@ -26,17 +27,16 @@ from pipeline.association.association_net import (  # noqa: E402
     AssociationNet,
     AssociationNetConfig,
     SceneInputs,
-    associate_network,
     scene_inputs,
 )
 from pipeline.association.association_scenes import Scene, SceneSetting, make_scene  # noqa: E402
-from pipeline.association.bias_robust_association import associate_bias_robust  # noqa: E402
-from pipeline.association.track_association import associate_double_threshold, associate_statistical  # noqa: E402
+from pipeline.association.associator import Associator, TrackSet  # noqa: E402
+from pipeline.association.registry import ASSOCIATORS, associator  # noqa: E402
 from pipeline.figure_png import png  # noqa: E402
 from pipeline.params import Association  # noqa: E402
 from pipeline.sections import subset  # noqa: E402
 
-METHODS = ("statistical", "double_threshold", "bias_robust", "network")
+BIAS_ESTIMATOR = "bias_robust"  # the method whose offset estimate the report scores
 SEED_ACCURACY = 0.875          # the seed's reported accuracy on a new scene of its setting (section 4.2)
 STATED_ACCURACY_PROBABILITY = 0.99
 
@@ -68,18 +68,26 @@ def training_epoch(a: Association) -> Callable[[int], list[SceneInputs]]:
     return make_epoch
 
 
-def decide_all(a: Association, model: AssociationNet, scene: Scene) -> tuple[dict[str, np.ndarray], np.ndarray,
-                                                                              np.ndarray]:
+def associators(a: Association, model: AssociationNet) -> dict[str, Associator]:
+    """Every registered method's associator with params `a`'s knobs; the scenes' radars share one clock
+    (`association_scenes`), so bias_robust estimates no clock offset here."""
+    same_clock = replace(a, max_time_offset_s=0.0)
+    return {name: associator(name, same_clock, model) for name in ASSOCIATORS}
+
+
+def scene_tracks(scene: Scene) -> tuple[TrackSet, TrackSet]:
+    """Each radar's tracks of a scene at its common times (the history, the common time last), ids by row."""
+    return tuple(TrackSet(tuple(np.arange(states.shape[1]) for _ in states), tuple(states), tuple(covariances))
+                 for states, covariances in ((scene.states1, scene.covariances1),
+                                             (scene.states2, scene.covariances2)))
+
+
+def decide_all(methods: dict[str, Associator], scene: Scene) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """Every method's pairs of a scene, and the bias-robust offset estimate (2,) with its covariance (2, 2)."""
-    last = (scene.states1[-1], scene.covariances1[-1], scene.states2[-1], scene.covariances2[-1])
-    robust = associate_bias_robust(*last, a.gate_probability, a.max_bias_m, a.vote_radius_m, a.max_iterations)
-    pairs = {"statistical": associate_statistical(*last, a.gate_probability),
-             "double_threshold": associate_double_threshold(scene.states1, scene.covariances1, scene.states2,
-                                                            scene.covariances2, a.gate_probability,
-                                                            a.double_threshold_hits),
-             "bias_robust": robust.pairs,
-             "network": associate_network(model, *last, a.decision_threshold)}
-    return pairs, robust.bias_m, robust.bias_covariance_m2
+    tracks = scene_tracks(scene)
+    decisions = {name: method.associate_tracks(*tracks) for name, method in methods.items()}
+    robust = decisions[BIAS_ESTIMATOR]
+    return {name: decision.pairs for name, decision in decisions.items()}, robust.bias_m, robust.bias_covariance_m2
 
 
 def count_pairs(pairs: np.ndarray, true_pairs: np.ndarray) -> dict[str, int]:
@@ -91,13 +99,13 @@ def count_pairs(pairs: np.ndarray, true_pairs: np.ndarray) -> dict[str, int]:
 
 def score_scenes(a: Association, model: AssociationNet, bias_m: tuple[float, float]) -> dict:
     """The module docstring's measures over `eval_scenes` scenes with bias lengths uniform in `bias_m`."""
-    setting = scene_setting(a, bias_m)
-    totals = {method: dict.fromkeys(("true", "correct", "false", "missed"), 0) for method in METHODS}
+    setting, methods = scene_setting(a, bias_m), associators(a, model)
+    totals = {method: dict.fromkeys(("true", "correct", "false", "missed"), 0) for method in methods}
     errors, inside = [], 0
     limit = chi2.ppf(STATED_ACCURACY_PROBABILITY, 2)
     for index in range(a.eval_scenes):
         scene = make_scene(setting, a.eval_seed, index)
-        pairs, bias, covariance = decide_all(a, model, scene)
+        pairs, bias, covariance = decide_all(methods, scene)
         for method, found in pairs.items():
             for key, value in count_pairs(found, scene.true_pairs).items():
                 totals[method][key] += value
@@ -123,7 +131,7 @@ def bias_figure(report: dict) -> bytes:
     """PNG: accuracy and false pairs per true pair against the bias length, one line per method."""
     biases = sorted(report["by_bias_m"], key=float)
     figure, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for method in METHODS:
+    for method in ASSOCIATORS:
         for axis, key in zip(axes, ("accuracy", "false_pairs")):
             axis.plot([float(b) for b in biases], [report["by_bias_m"][b]["methods"][method][key] for b in biases],
                       marker="o", label=method)

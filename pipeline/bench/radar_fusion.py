@@ -35,9 +35,9 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.association import association_net, table_association
+from pipeline.association.associator import Decision
 from pipeline.association.common_time_states import Frame, Snapshot, common_frame, common_snapshots
 from pipeline.association.system_tracks import SystemTracks
-from pipeline.association.table_association import Decision
 from pipeline.association.track_tables import CONFIRMED, TrackTable, track_table
 from pipeline.bench import gospa
 from pipeline.geometry import geodesy

@@ -15,7 +15,8 @@ import logging
 from pathlib import Path
 
 from pipeline import io
-from pipeline.association import association_net, clock_check, table_association
+from pipeline.association import association_net, clock_check, registry, table_association
+from pipeline.association.associator import Decision
 from pipeline.association.common_time_states import Snapshot, common_frame, common_snapshots
 from pipeline.association.track_tables import TrackTable, read_track_table
 from pipeline.params import Params
@@ -29,7 +30,7 @@ def run_associate(params: Params, track_paths: list[Path], radar_paths: list[Pat
                            {"--pairs": pairs_out, "--fused": fused_out})
     first, second = (read_track_table(tracks, radar, params.associate.max_speed_mps)
                      for tracks, radar in zip(track_paths, radar_paths))
-    model = association_net.load(models_dir / "association_net.pt") if method == "network" else None
+    model = association_net.load(models_dir / "association_net.pt") if registry.needs_network([method]) else None
     frame = common_frame(first, second)
     snapshots = common_snapshots(first, second, frame, params.associate)
     decisions = table_association.decide(snapshots, method, params.association, model,
@@ -44,7 +45,7 @@ def run_associate(params: Params, track_paths: list[Path], radar_paths: list[Pat
 
 
 def _warn_of_clock_offset(first: TrackTable, second: TrackTable, snapshots: list[Snapshot],
-                          decisions: list[table_association.Decision], params: Params) -> None:
+                          decisions: list[Decision], params: Params) -> None:
     """A warning when the decisions leave track pairs alike unpaired (`clock_check.clock_evidence`)."""
     evidence = clock_check.clock_evidence(snapshots, [d.pairs for d in decisions], [d.bias_m for d in decisions],
                                           [d.time_offset_s for d in decisions], params.association)

@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 from pipeline import io
-from pipeline.association import association_net
+from pipeline.association import association_net, registry
 from pipeline.bench import fusion_bias_sweep, radar_fusion
 from pipeline.params import Params
 
@@ -21,7 +21,8 @@ log = logging.getLogger("pipeline")
 
 
 def run_fusion(params: Params, models_dir: Path, reports_dir: Path) -> None:
-    model = association_net.load(models_dir / "association_net.pt") if "network" in params.fusion.methods else None
+    model = (association_net.load(models_dir / "association_net.pt") if registry.needs_network(params.fusion.methods)
+             else None)
     report = radar_fusion.fusion_report(params, models_dir, model)
     report["bias_sweep"] = fusion_bias_sweep.sweep_report(params, models_dir, model)
     io.write_json(report, reports_dir / "fusion.json")
