@@ -21,7 +21,8 @@ import yaml
 from pipeline.learning import kinds
 from pipeline.learning.recipe import Folders
 from pipeline.learning.runner import run_training
-from pipeline.params import Params, parse_params
+from pipeline.params import Params
+from pipeline.settings import parse_params
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track
