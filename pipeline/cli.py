@@ -124,8 +124,10 @@ def _asterix_export(args: argparse.Namespace) -> None:
 
 
 def _readme(args: argparse.Namespace) -> int:
+    from pipeline.bench.runs import declared_runs
     from pipeline.reports.readme import update_readme
-    changed = update_readme(Path(args.readme), Path(args.reports), check=args.check)
+    changed = update_readme(Path(args.readme), Path(args.reports), declared_runs(load_params(args.params)),
+                            check=args.check)
     if args.check and changed:
         log.error("%s: generated tables are out of date; run `python -m pipeline readme`", args.readme)
         return 1
@@ -220,7 +222,7 @@ COMMANDS = {
                        "--radar data/simulated/test/radar.parquet --scenario 0 --out scenario_0.ast",
                        ["export"]),
     "readme": (_readme, "Regenerate the README's results tables from reports/.",
-               "python -m pipeline readme --check", ["readme", "reports", "check"]),
+               "python -m pipeline readme --check", ["params", "readme", "reports", "check"]),
 }
 
 

@@ -1,15 +1,18 @@
 """The README's generated sections, from reports/ so no number in them is typed by hand.
 
 Each section lies between two marker comments (the results, and the Speed table of the
-whole pipeline); everything outside them is left alone.
+whole pipeline); everything outside them is left alone. The reports key their runs by name; the
+tables read each run's record, looked up among params' declared runs (`pipeline.bench.runs`).
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from pipeline import io
+from pipeline.bench.runs import Run, with_records
 from pipeline.bench.tracker_metrics import markdown_table
 from pipeline.params import STRATEGIES
 from pipeline.reports import comparison_tables, fusion_tables
@@ -107,49 +110,56 @@ def models_table(summary: dict) -> str:
     ])
 
 
-def tracker_table(summary: dict) -> str:
+def tracker_table(summary: dict, declared: Mapping[str, Run]) -> str:
     plots, thesis = summary["plots"], summary["thesis"]["plots"]
-    runs = {name: values for name, values in summary["runs"].items() if not name.endswith("_reference")}
-    return (markdown_table(runs) + f"\n\nTest data: {plots['target']:,} target plots and "
+    runs = with_records(summary["runs"], declared, "reports/tracker_metrics.json")
+    return (markdown_table({run: values for run, values in runs.items() if not run.reference})
+            + f"\n\nTest data: {plots['target']:,} target plots and "
             f"{plots['false']:,} false plots (thesis: {thesis['target']:,} and {thesis['false']:,}).")
 
 
-def comparison_section(comparison: dict) -> str:
+def comparison_section(comparison: dict, declared: Mapping[str, Run]) -> str:
     """Who wins, every tracker in one table, track continuity, GOSPA and its parts (reports before
     GOSPA have none), the many-aircraft scenes (reports before them have none), the networks against
     the tuned filters, each tracker's position error at the other radar sites (reports before
     `evaluate_sites` have none), and the two radars' fused picture (reports before the fusion stage have none)."""
-    gospa = comparison_tables.gospa_table(comparison["trackers"])
+    trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
+    gospa = comparison_tables.gospa_table(trackers)
     return "\n\n".join([
-        "\n".join(comparison_tables.verdict(comparison["trackers"], comparison["holdout"])),
-        comparison_tables.tracker_table(comparison["trackers"]),
+        "\n".join(comparison_tables.verdict(trackers, comparison["holdout"])),
+        comparison_tables.tracker_table(trackers),
         "Track continuity: tracks per aircraft · ROCA, over all test routes and by route strategy.",
-        comparison_tables.continuity_table(comparison["trackers"], comparison.get("by_strategy", {})),
+        comparison_tables.continuity_table(trackers, comparison.get("by_strategy", {})),
         *(["GOSPA and its parts (m; the parts add up to GOSPA), track switches, tracks assigned per aircraft and track "
            "purity, best GOSPA first (`pipeline/bench/gospa.py`):", gospa] if gospa else []),
         *([f"{comparison_tables.SCENES_TITLE} ({comparison['scenes']['scenes']} scenes of "
             f"{comparison['scenes']['aircraft_per_scene']} aircraft; `reports/comparison.md` says how they are made "
-            "and scored):", comparison_tables.scenes_table(comparison["scenes"]["runs"])]
+            "and scored):", comparison_tables.scenes_table(with_records(comparison["scenes"]["runs"], declared,
+                                                                       "reports/comparison.json"))]
           if "scenes" in comparison else []),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         comparison_tables.holdout_table(comparison["holdout"]),
-        *comparison_tables.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"]),
+        *comparison_tables.sites_section(comparison.get("sites", {"sites": []}), trackers),
         *([f"{fusion_tables.TITLE}:", *fusion_tables.fusion_section(comparison["fusion"], "reports/fusion_bias.png")]
           if "fusion" in comparison else [])])
 
 
-SECTIONS = (
-    ("data.json", "Simulated data", data_table),
-    ("windows.json", "Training windows", windows_table),
-    ("models.json", "Networks on the hold-out", models_table),
-    ("tracker_metrics.json", "Tracker on the test scenarios (thesis tables 5.1 and 5.2)", tracker_table),
-    ("comparison.json", "Neural against classical trackers", comparison_section),
-)
+def sections(declared: Mapping[str, Run]) -> tuple[tuple[str, str, Callable[[dict], str]], ...]:
+    """Each results section: its report, its title and its table, the runs' records from `declared` (by name)."""
+    return (
+        ("data.json", "Simulated data", data_table),
+        ("windows.json", "Training windows", windows_table),
+        ("models.json", "Networks on the hold-out", models_table),
+        ("tracker_metrics.json", "Tracker on the test scenarios (thesis tables 5.1 and 5.2)",
+         lambda summary: tracker_table(summary, declared)),
+        ("comparison.json", "Neural against classical trackers",
+         lambda comparison: comparison_section(comparison, declared)),
+    )
 
 
-def results_section(reports: Path) -> str:
+def results_section(reports: Path, declared: Mapping[str, Run]) -> str:
     parts = [START, ""]
-    for name, title, table in SECTIONS:
+    for name, title, table in sections(declared):
         path = reports / name
         if path.is_file():
             parts += [f"### {title} (`reports/{name}`)", "", table(json.loads(path.read_text())), ""]
@@ -183,10 +193,11 @@ def _replaced(text: str, start: str, end: str, section: str, readme: Path) -> st
     return head + section + tail
 
 
-def update_readme(readme: Path, reports: Path, check: bool = False) -> bool:
-    """Replace the generated sections; return whether they changed. With `check`, write nothing."""
+def update_readme(readme: Path, reports: Path, declared: Mapping[str, Run], check: bool = False) -> bool:
+    """Replace the generated sections (the reports' runs, by name, among params' `declared` runs); return whether
+    they changed. With `check`, write nothing."""
     text = readme.read_text()
-    updated = _replaced(text, START, END, results_section(reports), readme)
+    updated = _replaced(text, START, END, results_section(reports, declared), readme)
     updated = _replaced(updated, SPEED_START, SPEED_END, speed_section(reports), readme)
     if updated != text and not check:
         io.write_text(updated, readme)
