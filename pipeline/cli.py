@@ -112,9 +112,10 @@ def _asterix_export(args: argparse.Namespace) -> None:
 
 
 def _readme(args: argparse.Namespace) -> int:
+    from pipeline.bench.runs import declared_runs
     from pipeline.reports.readme import update_documents
     changed = update_documents(Path(args.readme), Path(args.docs), Path(args.reports), Path(args.package),
-                               check=args.check)
+                               declared_runs(load_params(args.params)), check=args.check)
     if args.check and changed:
         log.error("%s: generated sections are out of date; run `python -m pipeline readme`",
                   ", ".join(map(str, changed)))
@@ -215,7 +216,7 @@ COMMANDS = {
                        ["export"]),
     "readme": (_readme, "Regenerate the generated sections of the README and docs/: the results from reports/, "
                "the layout from the package's folders and docstrings.",
-               "python -m pipeline readme --check", ["readme", "docs", "reports", "package", "check"]),
+               "python -m pipeline readme --check", ["params", "readme", "docs", "reports", "package", "check"]),
 }
 
 

@@ -259,15 +259,20 @@ class TrackerParams:
 @dataclass(frozen=True)
 class EvaluationRun:
     """One evaluation run: a method, its window (m) and, if the run names one, its track
-    management rule (None: the tracker's, `tracker.management`)."""
+    management rule (None: the tracker's, `tracker.management`); or a reference of
+    `evaluate.references` (`reference`: the raw plots or the oracle, no window of its own: 0)."""
 
     method: str
     window_m: float
     management: str | None = None
+    reference: bool = False
 
     @property
     def name(self) -> str:
-        """`<method>_<window>`, and `_<rule>` when the run names its rule (`imm_4000_m_of_n`)."""
+        """`<method>_<window>`, and `_<rule>` when the run names its rule (`imm_4000_m_of_n`);
+        `<method>_reference` for a reference (`oracle_reference`). The reports' key of the run."""
+        if self.reference:
+            return f"{self.method}_reference"
         base = f"{self.method}_{self.window_m:.0f}"
         return base if self.management is None else f"{base}_{self.management}"
 
@@ -304,6 +309,10 @@ class Evaluate:
     def runs_on_scenes(self) -> tuple[EvaluationRun, ...]:
         """The runs `evaluate_scenes` scores: those `scene_runs` names, in `runs` order, or all of them."""
         return tuple(run for run in self.runs if not self.scene_runs or run.name in self.scene_runs)
+
+    def reference_runs(self) -> tuple[EvaluationRun, ...]:
+        """The references as runs, in `references` order (`plots_reference`, `oracle_reference`)."""
+        return tuple(EvaluationRun(method, 0.0, reference=True) for method in self.references)
 
 
 @dataclass(frozen=True)

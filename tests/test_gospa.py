@@ -16,6 +16,7 @@ from pipeline.bench import evaluation, gospa, ospa
 from pipeline.bench.tracker_metrics import RouteCounts
 from pipeline.reports import comparison_tables
 from pipeline.tracker.management import ThesisWeights
+from tests import tracker_fixtures as tf
 
 C, P = 1000.0, 2.0
 HALF = C ** P / 2.0  # 500 000 m^2
@@ -239,10 +240,10 @@ def test_gospa_table_best_first_and_none_for_reports_before_gospa():
                          "track_switches": 3, "tracks_per_truth": 1.5, "track_purity": 0.9876},
             "oracle_reference": {"GOSPA": 120.0, "GOSPA_localisation": 60.0, "GOSPA_missed": 60.0, "GOSPA_false": 0.0,
                                  "track_switches": 0, "tracks_per_truth": 1.0, "track_purity": float("nan")},
-            "old_run": {"OSPA": 250.0}}
-    lines = comparison_tables.gospa_table(runs).splitlines()
+            "via_5000": {"OSPA": 250.0}}
+    lines = comparison_tables.gospa_table(tf.run_records(runs)).splitlines()
     assert lines[0] == ("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track switches | "
                         "tracks assigned per aircraft | track purity |")
     assert lines[2:] == ["| oracle_reference | 120 | 60 | 60 | 0 | 0 | 1.00 | n/a |",
                          "| via_4000 | 300 | 100 | 150 | 50 | 3 | 1.50 | 0.988 |"]
-    assert comparison_tables.gospa_table({"via_4000": {"OSPA": 250.0, "GOSPA": None}}) == ""
+    assert comparison_tables.gospa_table(tf.run_records({"via_4000": {"OSPA": 250.0, "GOSPA": None}})) == ""

@@ -13,7 +13,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.bench.evaluation import run_management
+from pipeline.bench.evaluation import run_rule
+from pipeline.bench.runs import declared_runs
 from pipeline.bench.tracker_metrics import markdown_table
 from pipeline.filters.classical_filters import FilterSettings
 from pipeline.geometry import geodesy
@@ -131,7 +132,8 @@ def test_evaluate_scores_each_run_under_its_own_rule():
     tree["evaluate"]["site_runs"] = tree["evaluate"]["scene_runs"] = []
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                 {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
-    rules = run_management(parse_params(tree))
+    params = parse_params(tree)
+    rules = {name: run_rule(params, run) for name, run in declared_runs(params).items()}
     assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
     assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)
 
@@ -140,8 +142,8 @@ def test_the_tracker_table_labels_a_run_by_its_rule_and_keeps_the_others():
     """tracker_tables.md: `imm_4000_m_of_n` is the row `IMM 4000, m_of_n` right after `IMM 4000`, whose
     label is unchanged (our rows; the thesis's own rows sit under those it has)."""
     values = {"ROCA": 0.9}
-    rows = markdown_table({"imm_4000_m_of_n": values, "imm_4000": values, "via_4000": values}).splitlines()[2:]
-    rows = [row for row in rows if "| ours |" in row]
+    runs = tf.run_records({"imm_4000_m_of_n": values, "imm_4000": values, "via_4000": values})
+    rows = [row for row in markdown_table(runs).splitlines()[2:] if "| ours |" in row]
     assert [row.split(" | ")[0] for row in rows] == ["| VIA 4000", "| IMM 4000", "| IMM 4000, m_of_n"]
-    assert registry.run_parts("imm_gnn_4000_m_of_n") == ("imm_gnn", "4000", "m_of_n")
-    assert registry.run_parts("imm_gnn_4000") == ("imm_gnn", "4000", None)
+    gnn = declared_runs(tf.make_params())["imm_gnn_4000_m_of_n"]
+    assert (gnn.method, gnn.window_m, gnn.management, gnn.family) == ("imm_gnn", 4000.0, "m_of_n", registry.CLASSICAL)

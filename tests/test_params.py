@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pipeline.bench.runs import declared_runs
 from pipeline.params import STRATEGIES, ParamError
 from pipeline.settings import load_params, parse_params
-from pipeline.tracker import registry
 from tests.project import run_pipeline, write_params
 
 PARAMS_YAML = Path(__file__).resolve().parents[1] / "params.yaml"
@@ -194,16 +194,15 @@ def test_unknown_key_stops_the_command_with_exit_2(params_tree, tmp_path):
 
 def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(params_tree):
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
-    naming its rule is `<method>_<window>_<rule>`, whose method the registry still finds; a rule
-    that does not exist is named with its run."""
+    naming its rule is `<method>_<window>_<rule>`, and by that name its record, with the registry's
+    method, is found among params' runs; a rule that does not exist is named with its run."""
     params_tree["evaluate"]["site_runs"] = params_tree["evaluate"]["scene_runs"] = []
     params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                        {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs
     assert [run.name for run in runs] == ["via_4000", "imm_4000", "imm_4000_m_of_n"]
     assert runs[-1].management == "m_of_n" and all(run.management is None for run in runs[:-1])
-    assert registry.method_of_run("imm_4000_m_of_n").name == "imm"
-    assert registry.method_of_run("imm_gnn_4000_thesis").name == "imm_gnn"
+    assert declared_runs(parse_params(params_tree))["imm_4000_m_of_n"].registered.name == "imm"
     params_tree["evaluate"]["runs"][-1]["management"] = "weights"
     with pytest.raises(ParamError, match=rf"evaluate.runs\[{len(runs) - 1}\].management = 'weights': must be one of"):
         parse_params(params_tree)

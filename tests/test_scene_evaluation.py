@@ -13,6 +13,7 @@ import pytest
 
 from pipeline import io
 from pipeline.bench import scene_evaluation
+from pipeline.bench.runs import declared_runs, with_records
 from pipeline.reports import comparison_tables
 from pipeline.simulation import routes, scenes, simulate
 from pipeline.simulation.routes import PlannedRoute
@@ -61,7 +62,7 @@ def test_the_oracle_has_no_switch_where_two_aircraft_cross(tmp_path, models):
     scene = evaluation.scenes[0]
     gap = np.linalg.norm(scene.trajectories[0](scene.plots.time) - scene.trajectories[1](scene.plots.time), axis=1)
     assert gap.min() < 100.0 and set(scene.truth_id.tolist()) == {0, 1}
-    result = scene_evaluation.evaluate_unit(evaluation, "oracle_reference", 0)
+    result = scene_evaluation.evaluate_unit(evaluation, declared_runs(params)["oracle_reference"], 0)
     assert result.track_switches == 0
     assert result.tracks_per_truth.tolist() == [1, 1] and (result.track_purity == 1.0).all()
 
@@ -76,10 +77,11 @@ def test_a_formation_1_km_apart_gives_two_confirmed_tracks_with_gnn(tmp_path, mo
     scene = evaluation.scenes[0]
     np.testing.assert_allclose(np.linalg.norm(scene.trajectories[0](scene.plots.time)
                                               - scene.trajectories[1](scene.plots.time), axis=1), 1000.0, rtol=2e-3)
-    updates = evaluation.runs["imm_gnn_4000"](scene)
-    confirmed = confirmed_associations(updates, evaluation.management["imm_gnn_4000"])
+    run = declared_runs(params)["imm_gnn_4000"]
+    updates = evaluation.runs[run](scene)
+    confirmed = confirmed_associations(updates, evaluation.management[run])
     assert len(np.unique(updates["track_id"][confirmed])) == 2
-    result = scene_evaluation.evaluate_unit(evaluation, "imm_gnn_4000", 0)
+    result = scene_evaluation.evaluate_unit(evaluation, run, 0)
     assert result.track_switches == 0 and result.tracks_per_truth.tolist() == [1, 1]
 
 
@@ -98,7 +100,7 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
         parts = sum(values[f"GOSPA_{part}"] for part in ("localisation", "missed", "false"))
         assert parts == pytest.approx(values["GOSPA"]) and values["fragmentation"] >= 0.0
     assert (tmp_path / "reports" / "scene_example.png").read_bytes()[:4] == b"\x89PNG"
-    table = comparison_tables.scenes_table(report["runs"])
+    table = comparison_tables.scenes_table(with_records(report["runs"], declared_runs(params), "scene_metrics.json"))
     assert table.splitlines()[0].startswith("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track "
                                             "switches | fragmentation |")
     assert len(table.splitlines()) == 2 + 3

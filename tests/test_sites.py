@@ -144,7 +144,7 @@ def test_site_comparison_marks_what_moves_more_than_the_tolerance():
         "- Radar sites: 0 of 1 neural trackers keep their position error (MAE) within 10% of the training "
         "site's at all 2 other sites; the largest change: via_4000 at b, ratio 1.150.")
     runs = {"via_4000": {"OSPA": 2.0}, "kalman_cv_4000": {"OSPA": 1.0}, "via_4000_m_of_n": {"OSPA": 3.0}}
-    sentence, table = comparison_tables.sites_section(comparison, runs)  # a run not scored at the sites: left out
+    sentence, table = comparison_tables.sites_section(comparison, tf.run_records(runs))  # one not at the sites: left out
     assert "via_4000_m_of_n" not in table and table.index("kalman_cv_4000") < table.index("| via_4000")
 
 
@@ -163,4 +163,4 @@ def test_no_other_sites_no_section():
     training = {"name": "training", "latitude_deg": 60.0, "longitude_deg": 25.0, "height_m": 60.0,
                 "runs": {"via_4000": {"MAE": 200.0}}}
     comparison = site_report.site_comparison({"training": training, "sites": []})
-    assert comparison_tables.sites_section(comparison, {"via_4000": {"OSPA": 1.0}}) == []
+    assert comparison_tables.sites_section(comparison, tf.run_records({"via_4000": {"OSPA": 1.0}})) == []

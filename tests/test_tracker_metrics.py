@@ -224,7 +224,7 @@ def test_continuity_table_puts_a_run_under_both_rules_side_by_side():
             "imm_4000": {"tracks_per_aircraft": 1.2, "ROCA": 0.95}, "oracle_reference": {"tracks_per_aircraft": 1.0}}
     by_strategy = {"imm_4000": {"random_turns": {"tracks_per_aircraft": 1.5, "ROCA": 0.9},
                                 "sustained_turns": {"tracks_per_aircraft": 1.0, "ROCA": 0.875}}}
-    lines = comparison_tables.continuity_table(runs, by_strategy).splitlines()
+    lines = comparison_tables.continuity_table(tf.run_records(runs), by_strategy).splitlines()
     assert lines[0] == "| tracker | all routes | random_turns | sustained_turns |"
     assert [line.split(" | ")[0] for line in lines[2:]] == ["| oracle_reference", "| via_4000", "| imm_4000",
                                                               "| imm_4000_m_of_n"]

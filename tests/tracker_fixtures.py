@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 import pymap3d
 
 from pipeline import io
+from pipeline.bench.runs import Run, declared_runs, with_records
 from pipeline.filters.classical_filters import KINDS, FilterSettings
 from pipeline.geometry import geodesy
 from pipeline.learning import materials, model_eval
@@ -61,6 +62,12 @@ def params_tree(changes: Mapping[str, Any] | None = None) -> dict[str, Any]:
 
 def make_params(changes: Mapping[str, Any] | None = None) -> Params:
     return parse_params(params_tree(changes))
+
+
+def run_records(report: Mapping[str, dict]) -> dict[Run, dict]:
+    """A report's runs (metrics by run name) with their records, looked up among the default params' runs, as
+    the comparison and the README read them."""
+    return with_records(report, declared_runs(make_params()), "report")
 
 
 def radar_at(radar: Radar, latitude_deg: float, longitude_deg: float, height_m: float) -> Radar:

@@ -31,8 +31,9 @@ import pyarrow as pa
 
 from pipeline import io
 from pipeline.bench import gospa, ospa, unit_pool
+from pipeline.bench.runs import Run, evaluated
 from pipeline.bench.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
-from pipeline.params import EvaluationRun, Params
+from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import NO_TARGET, Plots
@@ -114,26 +115,23 @@ def reference_updates(scenario: Scenario, method: str, models: Models, params: P
     return {name: values[name] for name in COLUMNS}
 
 
-def tracker_runs(params: Params, models: Models) -> dict[str, callable]:
-    """Every run of params, and the references, as name -> track(scenario)."""
-    def method_run(run: EvaluationRun) -> callable:
+def tracker_runs(params: Params, models: Models) -> dict[Run, callable]:
+    """Every run of params, and the references (`runs.evaluated`), as run -> track(scenario)."""
+    def method_run(run: Run) -> callable:
         return lambda scenario: track(scenario.plots, registry.compose(
             run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id],
             run.management))
 
-    def reference_run(method: str) -> callable:
-        return lambda scenario: reference_updates(scenario, method, models, params)
+    def reference_run(run: Run) -> callable:
+        return lambda scenario: reference_updates(scenario, run.method, models, params)
 
-    return {**{run.name: method_run(run) for run in params.evaluate.runs},
-            **{f"{method}_reference": reference_run(method) for method in params.evaluate.references}}
+    return {run: reference_run(run) if run.reference else method_run(run) for run in evaluated(params.evaluate)}
 
 
-def run_management(params: Params) -> dict[str, TrackManagement]:
-    """The track management rule each run (and reference) is tracked and scored under, by name."""
-    default = registry.management(params.tracker.management, params.tracker)
-    return {**{run.name: registry.management(run.management or params.tracker.management, params.tracker)
-               for run in params.evaluate.runs},
-            **{f"{method}_reference": default for method in params.evaluate.references}}
+def run_rule(params: Params, run: Run) -> TrackManagement:
+    """The track management rule `run` is tracked and scored under: the one it names, else the tracker's
+    (`tracker.management`, every reference's)."""
+    return registry.management(run.management or params.tracker.management, params.tracker)
 
 
 @dataclass
@@ -153,14 +151,14 @@ class UnitResult:
 
 @dataclass
 class Evaluation:
-    """What every unit reads: the params, the test scenarios, and each run as name -> track(scenario);
+    """What every unit reads: the params, the test scenarios, and each run as run -> track(scenario);
     and the folders they come from (simulated data, routes, models), for worker processes to load
     their own copy."""
 
     params: Params
     folders: tuple[Path, Path, Path]
     scenarios: list[Scenario]
-    runs: dict[str, Callable[[Scenario], dict[str, np.ndarray]]]
+    runs: dict[Run, Callable[[Scenario], dict[str, np.ndarray]]]
 
 
 def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
@@ -172,12 +170,12 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
                       tracker_runs(params, models))
 
 
-def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
-    """Track scenario `index` (position in `evaluation.scenarios`) with run `name`, and score it."""
+def evaluate_unit(evaluation: Evaluation, run: Run, index: int) -> UnitResult:
+    """Track scenario `index` (position in `evaluation.scenarios`) with `run`, and score it."""
     params, scenario = evaluation.params, evaluation.scenarios[index]
-    management = run_management(params)[name]
+    management = run_rule(params, run)
     start = time.perf_counter()
-    updates = evaluation.runs[name](scenario)
+    updates = evaluation.runs[run](scenario)
     seconds = time.perf_counter() - start
     scan_of_plot = dict(zip(scenario.plots.plot_id.tolist(), scenario.scans.tolist()))
     update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
@@ -187,7 +185,7 @@ def evaluate_unit(evaluation: Evaluation, name: str, index: int) -> UnitResult:
     scored = target_gospa(scenario, ospa.scan_estimates(updates, update_scans, management), scans,
                           params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.zeros(int(np.isin(scans, scenario.coverage_scans).any()), dtype=np.int64)
-    pictured = name == params.evaluate.example_run and index < params.evaluate.example_scenarios
+    pictured = run.name == params.evaluate.example_run and index < params.evaluate.example_scenarios
     return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
                       gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
                       int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
@@ -232,9 +230,9 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
-def relative_cost(name: str, scenario: Scenario) -> float:
-    """Rough tracking time of one unit (run `name`, one scenario), to hand out the largest first."""
-    method = registry.method_of_run(name)
+def relative_cost(run: Run, scenario: Scenario) -> float:
+    """Rough tracking time of one unit (`run`, one scenario), to hand out the largest first."""
+    method = run.registered
     return (PLOTS_REFERENCE_COST if method is None else method.relative_cost) * len(scenario.plots)
 
 
@@ -252,31 +250,32 @@ def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) ->
 
 
 def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
-                 ) -> tuple[dict[str, dict], dict[str, np.ndarray], dict[int, dict], dict[str, dict]]:
+                 ) -> tuple[dict[Run, dict], dict[Run, np.ndarray], dict[int, dict], dict[Run, dict]]:
     """Every run over every scenario, in `workers` processes: each run's metrics, the OSPA of
     every scan (scenarios in order), the example run's updates of the pictured scenarios by
-    scenario id, and each run's metrics by route strategy (`metrics_by_strategy`). Each run's
-    metrics are logged, after `label`, as soon as its last unit is in."""
+    scenario id, and each run's metrics by route strategy (`metrics_by_strategy`), by run in
+    `evaluation.runs` order. Each run's metrics are logged, after `label`, as soon as its last
+    unit is in."""
     scenarios = evaluation.scenarios
     plots = sum(len(s.plots) for s in scenarios)
-    units = sorted(((name, index) for name in evaluation.runs for index in range(len(scenarios))),
+    units = sorted(((run, index) for run in evaluation.runs for index in range(len(scenarios))),
                    key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
     workers = max(1, min(workers, len(units)))
-    parts: dict[str, dict[int, UnitResult]] = {name: {} for name in evaluation.runs}
+    parts: dict[Run, dict[int, UnitResult]] = {run: {} for run in evaluation.runs}
     results, per_scan, examples, by_strategy = {}, {}, {}, {}
     report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((name, index), result) in enumerate(unit_pool.completed_units(
+    for done, ((run, index), result) in enumerate(unit_pool.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
-        parts[name][index] = result
+        parts[run][index] = result
         report(done, len(units))
-        if len(parts[name]) == len(scenarios):
-            finished = parts.pop(name)
+        if len(parts[run]) == len(scenarios):
+            finished = parts.pop(run)
             ordered = [finished[i] for i in range(len(scenarios))]
-            results[name] = run_metrics(ordered, plots)
-            by_strategy[name] = metrics_by_strategy(scenarios, ordered)
-            per_scan[name] = np.concatenate([r.scan_ospa for r in ordered])
+            results[run] = run_metrics(ordered, plots)
+            by_strategy[run] = metrics_by_strategy(scenarios, ordered)
+            per_scan[run] = np.concatenate([r.scan_ospa for r in ordered])
             examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
                              if r.updates is not None})
-            log.info("%s %s: %s", label, name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
-    return ({name: results[name] for name in evaluation.runs}, {name: per_scan[name] for name in evaluation.runs},
-            examples, {name: by_strategy[name] for name in evaluation.runs})
+            log.info("%s %s: %s", label, run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
+    return ({run: results[run] for run in evaluation.runs}, {run: per_scan[run] for run in evaluation.runs},
+            examples, {run: by_strategy[run] for run in evaluation.runs})

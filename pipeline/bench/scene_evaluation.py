@@ -44,6 +44,7 @@ import pyarrow as pa
 
 from pipeline import io
 from pipeline.bench import evaluation, gospa, ospa, unit_pool
+from pipeline.bench.runs import Run
 from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.recordings import plot_table
@@ -117,15 +118,15 @@ def scene_params(params: Params) -> Params:
 
 @dataclass
 class SceneEvaluation:
-    """What every unit reads: params (`scene_params`'), the scenes, each run as name -> track(scene)
+    """What every unit reads: params (`scene_params`'), the scenes, each run as run -> track(scene)
     and its track management rule; and the folders (scenes, models) for worker processes to load
     their own copy."""
 
     params: Params
     folders: tuple[Path, Path]
     scenes: list[Scene]
-    runs: dict[str, Callable[[Scene], dict[str, np.ndarray]]]
-    management: dict[str, TrackManagement]
+    runs: dict[Run, Callable[[Scene], dict[str, np.ndarray]]]
+    management: dict[Run, TrackManagement]
 
 
 def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluation:
@@ -133,8 +134,9 @@ def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluati
     chosen = scene_params(params)
     models = load_models(models_dir, chosen, [run.method for run in chosen.evaluate.runs]
                          + list(chosen.evaluate.references))
-    return SceneEvaluation(chosen, (scenes_dir, models_dir), read_scenes(chosen, scenes_dir),
-                           evaluation.tracker_runs(chosen, models), evaluation.run_management(chosen))
+    runs = evaluation.tracker_runs(chosen, models)
+    return SceneEvaluation(chosen, (scenes_dir, models_dir), read_scenes(chosen, scenes_dir), runs,
+                           {run: evaluation.run_rule(chosen, run) for run in runs})
 
 
 def scene_gospa(scene: Scene, estimates: ospa.ScanEstimates, cutoff: float, order: float) -> gospa.ScanGospa:
@@ -163,13 +165,13 @@ class SceneResult:
     pictured: tuple[dict[str, np.ndarray], gospa.ScanGospa] | None  # updates and assignment, for the picture
 
 
-def evaluate_unit(evaluation: SceneEvaluation, name: str, index: int, pictured: bool = False) -> SceneResult:
-    """Track scene `index` (position in `evaluation.scenes`) with run `name`, and score it; keep the
+def evaluate_unit(evaluation: SceneEvaluation, run: Run, index: int, pictured: bool = False) -> SceneResult:
+    """Track scene `index` (position in `evaluation.scenes`) with `run`, and score it; keep the
     updates and the assignment when the scene is `pictured`."""
     params, scene = evaluation.params, evaluation.scenes[index]
-    management = evaluation.management[name]
+    management = evaluation.management[run]
     start = time.perf_counter()
-    updates = evaluation.runs[name](scene)
+    updates = evaluation.runs[run](scene)
     seconds = time.perf_counter() - start
     scan_of_plot = dict(zip(scene.plots.plot_id.tolist(), scene.scans.tolist()))
     update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
@@ -198,30 +200,30 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
-def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[str, int]
-                 ) -> tuple[dict[str, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
-    """Every run over every scene in `workers` processes: each run's metrics (logged as soon as its
-    last unit is in), and the updates and assignment of the `example` unit (run name, scene index)."""
+def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, int]
+                 ) -> tuple[dict[Run, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
+    """Every run over every scene in `workers` processes: each run's metrics by run, in `evaluation.runs`
+    order (logged as soon as its last unit is in), and the updates and assignment of the `example` unit
+    (run, scene index)."""
     tracked = evaluation.scenes
     plots = sum(len(scene.plots) for scene in tracked)
 
-    def cost(unit: tuple[str, int, bool]) -> float:
-        method = registry.method_of_run(unit[0])
-        return -method.relative_cost * len(tracked[unit[1]].plots)
+    def cost(unit: tuple[Run, int, bool]) -> float:
+        return -unit[0].registered.relative_cost * len(tracked[unit[1]].plots)
 
-    units = sorted(((name, index, (name, index) == example) for name in evaluation.runs
+    units = sorted(((run, index, (run, index) == example) for run in evaluation.runs
                     for index in range(len(tracked))), key=cost)
     workers = max(1, min(workers, len(units)))
-    parts: dict[str, dict[int, SceneResult]] = {name: {} for name in evaluation.runs}
+    parts: dict[Run, dict[int, SceneResult]] = {run: {} for run in evaluation.runs}
     results, pictured = {}, None
     report = progress_logger(f"evaluate_scenes ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((name, index, _), result) in enumerate(unit_pool.completed_units(
+    for done, ((run, index, _), result) in enumerate(unit_pool.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
-        parts[name][index] = result
+        parts[run][index] = result
         pictured = result.pictured or pictured
         report(done, len(units))
-        if len(parts[name]) == len(tracked):
-            finished = parts.pop(name)
-            results[name] = run_metrics([finished[i] for i in range(len(tracked))], plots)
-            log.info("evaluate_scenes %s: %s", name, ", ".join(f"{k} {v:.4g}" for k, v in results[name].items()))
-    return {name: results[name] for name in evaluation.runs}, pictured
+        if len(parts[run]) == len(tracked):
+            finished = parts.pop(run)
+            results[run] = run_metrics([finished[i] for i in range(len(tracked))], plots)
+            log.info("evaluate_scenes %s: %s", run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
+    return {run: results[run] for run in evaluation.runs}, pictured

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from pipeline import io
 from pipeline.bench import evaluation
+from pipeline.bench.runs import by_name
 from pipeline.params import Params, Site
 from pipeline.progress import progress_logger
 from pipeline.simulation import routes, simulate
@@ -71,7 +72,7 @@ def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
         place_split(moved, folder, label)
         prepared = evaluation.prepare(moved, folder / "simulated", folder / "routes", models_dir)
         runs, _, _, _ = evaluation.evaluate_all(prepared, params.workers, label)
-    return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, runs)
+    return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, by_name(runs))
 
 
 def site_metrics(params: Params, training_runs: dict[str, dict], models_dir: Path) -> dict:

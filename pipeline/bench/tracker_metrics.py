@@ -24,10 +24,12 @@ comes back, which the oracle's figure shows), 0 a route never tracked.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.bench.runs import Run
 from pipeline.tracker import registry
 from pipeline.tracker.management import TrackManagement
 from pipeline.tracker.updates import confirmed_associations, positions
@@ -124,8 +126,9 @@ def summarise(routes: list[RouteCounts]) -> dict[str, float]:
     }
 
 
-def markdown_table(results: dict[str, dict]) -> str:
-    """Thesis tables 5.1/5.2 layout, with the thesis's row under each of ours."""
+def markdown_table(results: Mapping[Run, dict]) -> str:
+    """Thesis tables 5.1/5.2 layout, with the thesis's row under each of ours: by method in registry
+    order, window and rule, each labelled by its method's label, window and the rule it names."""
     header = "| method (window) | source | " + " | ".join(METRICS) + " |"
     lines = [header, "|---|---|" + "---|" * len(METRICS)]
 
@@ -140,16 +143,13 @@ def markdown_table(results: dict[str, dict]) -> str:
 
     order = list(registry.METHODS)
 
-    def position(name: str) -> tuple[int, float, str]:
-        method, window, rule = registry.run_parts(name)
-        return (order.index(method) if method in order else len(order), float(window), rule or "")
+    def position(run: Run) -> tuple[int, float, str]:
+        return (order.index(run.method) if run.method in order else len(order), run.window_m, run.management or "")
 
-    for name in sorted(results, key=position):
-        values = results[name]
-        method, window, rule = registry.run_parts(name)
-        label = f"{registry.METHODS[method].label if method in registry.METHODS else method} {window}"
-        label += f", {rule}" if rule else ""
-        lines.append(f"| {label} | ours | {cells(values)} |")
-        if name in THESIS:
-            lines.append(f"| {label} | thesis | {cells(THESIS[name])} |")
+    for run in sorted(results, key=position):
+        label = f"{run.registered.label if run.registered else run.method} {run.window_m:.0f}"
+        label += f", {run.management}" if run.management else ""
+        lines.append(f"| {label} | ours | {cells(results[run])} |")
+        if run.name in THESIS:
+            lines.append(f"| {label} | thesis | {cells(THESIS[run.name])} |")
     return "\n".join(lines)

@@ -1,15 +1,22 @@
 """The comparison's tables and sentences in Markdown, from the numbers `compare` gathers
 (`reports/comparison.json`): the tracker table, continuity, GOSPA, the scenes, the sites, the
 hold-out and tuning tables, and the plain-sentence verdict. The `compare` stage writes them to
-`reports/comparison.md`, the `readme` stage into docs/results.md (and its verdict into the README).
+`reports/comparison.md`, the `readme` stage into docs/results.md (and its verdict into the README). The tables of runs read each run's
+record with its metrics (`pipeline.bench.runs`: its method, window, rule, family; a report's names
+looked up among params' runs), and show its name.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
+from pipeline.bench.runs import Run
 from pipeline.reports import site_report
 from pipeline.tracker import registry
+
+ORACLE = "oracle"  # the reference whose gap to the best tracker the verdict states
 
 TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NOMT", "NOFPA", "ANEES",
                    "plots_per_second")
@@ -105,20 +112,20 @@ def _cell(value: float | None, form: str) -> str:
 
 
 
-def by_ospa(runs: dict[str, dict]) -> list[str]:
-    """Run names, best (lowest) OSPA first; runs without one last."""
-    return sorted(runs, key=lambda n: runs[n].get("OSPA") if runs[n].get("OSPA") is not None else np.inf)
+def by_ospa(runs: Mapping[Run, dict]) -> list[Run]:
+    """The runs, best (lowest) OSPA first; runs without one last."""
+    return sorted(runs, key=lambda r: runs[r].get("OSPA") if runs[r].get("OSPA") is not None else np.inf)
 
 
 
-def sites_section(sites: dict, runs: dict[str, dict]) -> list[str]:
+def sites_section(sites: dict, runs: Mapping[Run, dict]) -> list[str]:
     """The verdict on the radar sites and the table of the runs scored there (those of `runs`
     that `sites` has, best OSPA first); nothing when there are no sites besides the training one."""
     if len(sites["sites"]) < 2:
         return []
-    scored = [name for name in by_ospa(runs) if name in sites["runs"]]  # evaluate.site_runs and the references
-    neural = [name for name in scored if registry.family_of_run(name) == registry.NEURAL]
-    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, scored)]
+    scored = [run for run in by_ospa(runs) if run.name in sites["runs"]]  # evaluate.site_runs and the references
+    neural = [run.name for run in scored if run.family == registry.NEURAL]
+    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, [run.name for run in scored])]
 
 
 
@@ -132,39 +139,40 @@ CONTINUITY_INTRO = (
 
 
 
-def continuity_table(runs: dict[str, dict], by_strategy: dict[str, dict]) -> str:
+def continuity_table(runs: Mapping[Run, dict], by_strategy: dict[str, dict]) -> str:
     """Tracks per aircraft and ROCA of every run (references first, then by method, window and
-    rule, so a run under both rules is two adjacent rows), over all routes and per strategy."""
+    rule, so a run under both rules is two adjacent rows), over all routes and per strategy
+    (`by_strategy`, by run name as the report has it)."""
     strategies = list(next(iter(by_strategy.values()), {}))
     order = list(registry.METHODS)
 
-    def position(name: str) -> tuple:
-        if name.endswith("_reference"):
-            return (-1, 0.0, "", name)
-        method, window, rule = registry.run_parts(name)
-        return (order.index(method) if method in order else len(order), float(window), rule or "", name)
+    def position(run: Run) -> tuple:
+        if run.reference:
+            return (-1, 0.0, "", run.name)
+        return (order.index(run.method) if run.method in order else len(order), run.window_m, run.management or "",
+                run.name)
 
     def cell(values: dict) -> str:
         return f"{_cell(values.get('tracks_per_aircraft'), '{:.2f}')} · {_cell(values.get('ROCA'), '{:.3f}')}"
 
     lines = ["| tracker | all routes | " + " | ".join(strategies) + " |", "|---" * (len(strategies) + 2) + "|"]
-    for name in sorted(runs, key=position):
-        lines.append(f"| {name} | {cell(runs[name])} | "
-                     + " | ".join(cell(by_strategy.get(name, {}).get(s, {})) for s in strategies) + " |")
+    for run in sorted(runs, key=position):
+        lines.append(f"| {run.name} | {cell(runs[run])} | "
+                     + " | ".join(cell(by_strategy.get(run.name, {}).get(s, {})) for s in strategies) + " |")
     return "\n".join(lines)
 
 
 
-def tracker_table(runs: dict[str, dict]) -> str:
+def tracker_table(runs: Mapping[Run, dict]) -> str:
     forms = {"OSPA": "{:.0f}", "OSPA_p90": "{:.0f}", "MAE": "{:.0f}", "ROCA": "{:.3f}", "tracks_per_aircraft": "{:.2f}",
              "NOMT": "{:.2f}", "NOFPA": "{:.0f}",
              "ANEES": "{:.2f}", "plots_per_second": "{:,.0f}"}
     header = ["tracker", "OSPA (m)", "OSPA, 90 % of scans below (m)", "MAE (m)", "ROCA", "aircraft tracks per route", "NOMT",
               "NOFPA", "ANEES (3 = consistent)", "plots/s"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-    for name in by_ospa(runs):
-        values = runs[name]
-        lines.append(f"| {name} | " + " | ".join(_cell(values.get(m), forms[m]) for m in TRACKER_METRICS) + " |")
+    for run in by_ospa(runs):
+        values = runs[run]
+        lines.append(f"| {run.name} | " + " | ".join(_cell(values.get(m), forms[m]) for m in TRACKER_METRICS) + " |")
     return "\n".join(lines)
 
 
@@ -180,10 +188,10 @@ GOSPA_INTRO = (
 
 
 
-def gospa_table(runs: dict[str, dict]) -> str:
+def gospa_table(runs: Mapping[Run, dict]) -> str:
     """GOSPA and its parts, switches, tracks per truth and purity of the runs that have them (reports
     before GOSPA have none: then no table), best GOSPA first."""
-    scored = {name: values for name, values in runs.items() if values.get("GOSPA") is not None}
+    scored = {run: values for run, values in runs.items() if values.get("GOSPA") is not None}
     if not scored:
         return ""
     forms = {"GOSPA": "{:.0f}", "GOSPA_localisation": "{:.0f}", "GOSPA_missed": "{:.0f}", "GOSPA_false": "{:.0f}",
@@ -191,8 +199,9 @@ def gospa_table(runs: dict[str, dict]) -> str:
     header = ["tracker", "GOSPA (m)", "localisation (m)", "missed (m)", "false (m)", "track switches",
               "tracks assigned per aircraft", "track purity"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-    for name in sorted(scored, key=lambda n: scored[n]["GOSPA"]):
-        lines.append(f"| {name} | " + " | ".join(_cell(scored[name].get(m), forms[m]) for m in GOSPA_METRICS) + " |")
+    for run in sorted(scored, key=lambda r: scored[r]["GOSPA"]):
+        lines.append(f"| {run.name} | " + " | ".join(_cell(scored[run].get(m), forms[m]) for m in GOSPA_METRICS)
+                     + " |")
     return "\n".join(lines)
 
 
@@ -217,7 +226,7 @@ def scenes_intro(scenes: dict, cutoff_m: float, order: float) -> str:
 
 
 
-def scenes_table(runs: dict[str, dict]) -> str:
+def scenes_table(runs: Mapping[Run, dict]) -> str:
     """GOSPA and its parts, switches, fragmentation, tracks per truth, purity and speed of every run on
     the scenes, best GOSPA first."""
     forms = {"GOSPA": "{:.0f}", "GOSPA_localisation": "{:.0f}", "GOSPA_missed": "{:.0f}", "GOSPA_false": "{:.0f}",
@@ -226,8 +235,8 @@ def scenes_table(runs: dict[str, dict]) -> str:
     header = ["tracker", "GOSPA (m)", "localisation (m)", "missed (m)", "false (m)", "track switches",
               "fragmentation", "tracks assigned per aircraft", "track purity", "plots/s"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
-    for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
-        lines.append(f"| {name} | " + " | ".join(_cell(runs[name].get(m), forms[m]) for m in SCENE_METRICS) + " |")
+    for run in sorted(runs, key=lambda r: runs[r]["GOSPA"]):
+        lines.append(f"| {run.name} | " + " | ".join(_cell(runs[run].get(m), forms[m]) for m in SCENE_METRICS) + " |")
     return "\n".join(lines)
 
 
@@ -266,11 +275,12 @@ def tuning_table(tuning: dict) -> str:
 
 
 
-def verdict(runs: dict[str, dict], holdout: dict) -> list[str]:
+def verdict(runs: Mapping[Run, dict], holdout: dict) -> list[str]:
     """Plain sentences on who wins what, from the numbers."""
-    trackers = {name: values for name, values in runs.items() if registry.family_of_run(name) != registry.REFERENCE}
-    neural = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.NEURAL}
-    classical = {n: v for n, v in trackers.items() if registry.family_of_run(n) == registry.CLASSICAL}
+    trackers = {run.name: values for run, values in runs.items() if not run.reference}
+    neural = {run.name: v for run, v in runs.items() if run.family == registry.NEURAL}
+    classical = {run.name: v for run, v in runs.items() if run.family == registry.CLASSICAL}
+    oracle = next((values for run, values in runs.items() if run.reference and run.method == ORACLE), None)
     sentences = []
 
     def best(group: dict, metric: str, low: bool = True) -> str:
@@ -291,10 +301,10 @@ def verdict(runs: dict[str, dict], holdout: dict) -> list[str]:
             sentences.append(f"- position error (MAE) among trackers keeping at least {MAE_MIN_ROCA:.0%} of the "
                              f"target plots: best neural {n} {neural[n]['MAE']:.4g} m, best classical {c} "
                              f"{classical[c]['MAE']:.4g} m; **{winner}** wins.")
-    if "oracle_reference" in runs and trackers:
+    if oracle is not None and trackers:
         top = best(trackers, "OSPA")
-        sentences.append(f"- True association (oracle, tuned IMM) reaches OSPA {runs['oracle_reference']['OSPA']:.4g} "
-                         f"and MAE {runs['oracle_reference']['MAE']:.4g} m against the best tracker's "
+        sentences.append(f"- True association (oracle, tuned IMM) reaches OSPA {oracle['OSPA']:.4g} "
+                         f"and MAE {oracle['MAE']:.4g} m against the best tracker's "
                          f"{trackers[top]['OSPA']:.4g} and {trackers[top]['MAE']:.4g} m ({top}): the gap is what "
                          "association costs.")
     if holdout["filter_error_m"]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -10,12 +12,13 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 import pymap3d  # noqa: E402
 
+from pipeline.bench.runs import Run  # noqa: E402
 from pipeline.figure_png import png  # noqa: E402
 from pipeline.geometry import geodesy  # noqa: E402
 from pipeline.params import STRATEGIES, Params  # noqa: E402
 from pipeline.simulation.data_summary import target_plot_errors_m, target_plot_intervals_s  # noqa: E402
 from pipeline.tracker.management import TrackManagement  # noqa: E402
-from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE, family_of_run  # noqa: E402
+from pipeline.tracker.registry import CLASSICAL, NEURAL, REFERENCE  # noqa: E402
 from pipeline.tracker.updates import confirmed_associations, positions  # noqa: E402
 
 FAMILY_COLOURS = {NEURAL: "tab:blue", CLASSICAL: "tab:orange", REFERENCE: "tab:grey"}
@@ -159,15 +162,15 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
     return png(figure)
 
 
-def comparison_picture(runs: dict[str, dict]) -> bytes:
-    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top."""
-    names = sorted(runs, key=lambda n: runs[n]["OSPA"], reverse=True)
-    figure, axes = plt.subplots(1, 3, figsize=(13, 0.4 * len(names) + 1.5), sharey=True)
+def comparison_picture(runs: Mapping[Run, dict]) -> bytes:
+    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top, coloured by family."""
+    ordered = sorted(runs, key=lambda r: runs[r]["OSPA"], reverse=True)
+    figure, axes = plt.subplots(1, 3, figsize=(13, 0.4 * len(ordered) + 1.5), sharey=True)
     for axis, (metric, label) in zip(axes, (("OSPA", "OSPA (m)"), ("MAE", "MAE of confirmed tracks (m)"),
                                             ("ROCA", "target plots in confirmed tracks (ROCA)"))):
-        values = [runs[n][metric] if runs[n][metric] is not None else np.nan for n in names]
-        colours = [FAMILY_COLOURS[family_of_run(n)] for n in names]
-        axis.barh(names, values, color=colours)
+        values = [runs[r][metric] if runs[r][metric] is not None else np.nan for r in ordered]
+        colours = [FAMILY_COLOURS[r.family] for r in ordered]
+        axis.barh([r.name for r in ordered], values, color=colours)
         axis.set_xlabel(label)
         axis.grid(axis="x", alpha=0.3)
     axes[0].set_title("blue: neural, orange: classical, grey: references", loc="left", fontsize=9)
@@ -175,15 +178,15 @@ def comparison_picture(runs: dict[str, dict]) -> bytes:
     return png(figure)
 
 
-def ospa_distribution(per_scan: dict[str, np.ndarray], cutoff: float) -> bytes:
-    """Share of scans at or below each OSPA, one line per tracker: where the mean hides
-    whether a tracker is often slightly off or sometimes missing (OSPA at the cutoff)."""
+def ospa_distribution(per_scan: Mapping[Run, np.ndarray], cutoff: float) -> bytes:
+    """Share of scans at or below each OSPA, one line per tracker (dashed: the references): where
+    the mean hides whether a tracker is often slightly off or sometimes missing (OSPA at the cutoff)."""
     figure, axis = plt.subplots(figsize=(9, 5.5))
     colours = plt.get_cmap("tab20").colors
-    for index, name in enumerate(sorted(per_scan, key=lambda n: per_scan[n].mean())):
-        values = np.sort(per_scan[name])
-        style = "--" if name.endswith("_reference") else "-"
-        axis.plot(values, np.arange(1, len(values) + 1) / len(values), style, label=name, linewidth=1.2,
+    for index, run in enumerate(sorted(per_scan, key=lambda r: per_scan[r].mean())):
+        values = np.sort(per_scan[run])
+        style = "--" if run.reference else "-"
+        axis.plot(values, np.arange(1, len(values) + 1) / len(values), style, label=run.name, linewidth=1.2,
                   color=colours[index % len(colours)])
     axis.set_xlim(0, cutoff * 1.02)
     axis.set_xlabel(f"OSPA of a scan (m); {cutoff:.0f} m = a missed or a false track")

@@ -4,16 +4,19 @@ goes unlisted.
 Each section lies between two marker comments in the file that holds it: the headline results in README.md,
 every results table in docs/results.md and the Speed table of the whole pipeline in docs/speed.md (all from
 reports/), and the package's layout in docs/architecture.md (from its folders and docstrings,
-`pipeline.reports.layout`); everything outside the markers is left alone.
+`pipeline.reports.layout`); everything outside the markers is left alone. The reports key their runs by
+name; the tables read each run's record, looked up among params' declared runs (`pipeline.bench.runs`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 from pipeline import io
+from pipeline.bench.runs import Run, with_records
 from pipeline.bench.tracker_metrics import markdown_table
 from pipeline.params import STRATEGIES
 from pipeline.reports import comparison_tables, fusion_tables, layout
@@ -118,10 +121,11 @@ def models_table(summary: dict) -> str:
     ])
 
 
-def tracker_table(summary: dict) -> str:
+def tracker_table(summary: dict, declared: Mapping[str, Run]) -> str:
     plots, thesis = summary["plots"], summary["thesis"]["plots"]
-    runs = {name: values for name, values in summary["runs"].items() if not name.endswith("_reference")}
-    return (markdown_table(runs) + f"\n\nTest data: {plots['target']:,} target plots and "
+    runs = with_records(summary["runs"], declared, "reports/tracker_metrics.json")
+    return (markdown_table({run: values for run, values in runs.items() if not run.reference})
+            + f"\n\nTest data: {plots['target']:,} target plots and "
             f"{plots['false']:,} false plots (thesis: {thesis['target']:,} and {thesis['false']:,}).")
 
 
@@ -130,31 +134,33 @@ def _link(path: Path, folder: Path) -> str:
     return Path(os.path.relpath(path, folder)).as_posix()
 
 
-def comparison_section(comparison: dict, fusion_picture: str) -> str:
+def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[str, Run]) -> str:
     """Who wins, every tracker in one table, track continuity, GOSPA and its parts (reports before
     GOSPA have none), the many-aircraft scenes (reports before them have none), the networks against
     the tuned filters, each tracker's position error at the other radar sites (reports before
     `evaluate_sites` have none), and the two radars' fused picture (reports before the fusion stage have none)."""
-    gospa = comparison_tables.gospa_table(comparison["trackers"])
+    trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
+    gospa = comparison_tables.gospa_table(trackers)
     return "\n\n".join([
-        "\n".join(comparison_tables.verdict(comparison["trackers"], comparison["holdout"])),
-        comparison_tables.tracker_table(comparison["trackers"]),
+        "\n".join(comparison_tables.verdict(trackers, comparison["holdout"])),
+        comparison_tables.tracker_table(trackers),
         "Track continuity: tracks per aircraft · ROCA, over all test routes and by route strategy.",
-        comparison_tables.continuity_table(comparison["trackers"], comparison.get("by_strategy", {})),
+        comparison_tables.continuity_table(trackers, comparison.get("by_strategy", {})),
         *(["GOSPA and its parts (m; the parts add up to GOSPA), track switches, tracks assigned per aircraft and track "
            "purity, best GOSPA first (`pipeline/bench/gospa.py`):", gospa] if gospa else []),
         *([f"{comparison_tables.SCENES_TITLE} ({comparison['scenes']['scenes']} scenes of "
             f"{comparison['scenes']['aircraft_per_scene']} aircraft; `reports/comparison.md` says how they are made "
-            "and scored):", comparison_tables.scenes_table(comparison["scenes"]["runs"])]
+            "and scored):", comparison_tables.scenes_table(with_records(comparison["scenes"]["runs"], declared,
+                                                                       "reports/comparison.json"))]
           if "scenes" in comparison else []),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         comparison_tables.holdout_table(comparison["holdout"]),
-        *comparison_tables.sites_section(comparison.get("sites", {"sites": []}), comparison["trackers"]),
+        *comparison_tables.sites_section(comparison.get("sites", {"sites": []}), trackers),
         *([f"{fusion_tables.TITLE}:", *fusion_tables.fusion_section(comparison["fusion"], fusion_picture)]
           if "fusion" in comparison else [])])
 
 
-def results_section(reports: Path, folder: Path) -> str:
+def results_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -> str:
     """Every results table (a report not there yet is left out), for a page in `folder`, which the
     pictures' links are relative to."""
     fusion_picture = _link(reports / "fusion_bias.png", folder)
@@ -162,9 +168,10 @@ def results_section(reports: Path, folder: Path) -> str:
         ("data.json", "Simulated data", data_table),
         ("windows.json", "Training windows", windows_table),
         ("models.json", "Networks on the hold-out", models_table),
-        ("tracker_metrics.json", "Tracker on the test scenarios (thesis tables 5.1 and 5.2)", tracker_table),
+        ("tracker_metrics.json", "Tracker on the test scenarios (thesis tables 5.1 and 5.2)",
+         lambda summary: tracker_table(summary, declared)),
         ("comparison.json", "Neural against classical trackers",
-         lambda comparison: comparison_section(comparison, fusion_picture)),
+         lambda comparison: comparison_section(comparison, fusion_picture, declared)),
     )
     parts = [START, ""]
     for name, title, table in sections:
@@ -175,13 +182,14 @@ def results_section(reports: Path, folder: Path) -> str:
     return "\n".join(parts)
 
 
-def headline_section(reports: Path, folder: Path) -> str:
+def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -> str:
     """Who wins what, in plain sentences, and the picture of every tracker: the comparison's verdict."""
     path = reports / "comparison.json"
     if not path.is_file():
         return "\n".join([HEADLINE_START, "", "No comparison yet: run `dvc repro compare`.", "", HEADLINE_END])
     comparison = json.loads(path.read_text())
-    return "\n".join([HEADLINE_START, "", *comparison_tables.verdict(comparison["trackers"], comparison["holdout"]),
+    trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
+    return "\n".join([HEADLINE_START, "", *comparison_tables.verdict(trackers, comparison["holdout"]),
                       "", f"![{COMPARISON_PICTURE}]({_link(reports / 'comparison.png', folder)})", "",
                       HEADLINE_END])
 
@@ -212,20 +220,24 @@ def _replaced(text: str, start: str, end: str, section: str, document: Path) -> 
     return head + section + tail
 
 
-def generated_sections(readme: Path, docs: Path, reports: Path, package: Path) -> list[tuple[Path, str, str, str]]:
-    """Each generated section as (the file that holds it, its start marker, its end marker, its text)."""
+def generated_sections(readme: Path, docs: Path, reports: Path, package: Path, declared: Mapping[str, Run]
+                       ) -> list[tuple[Path, str, str, str]]:
+    """Each generated section as (the file that holds it, its start marker, its end marker, its text), the
+    reports' runs read as params' `declared` runs (by name)."""
     results, speed, architecture = docs / "results.md", docs / "speed.md", docs / "architecture.md"
-    return [(readme, HEADLINE_START, HEADLINE_END, headline_section(reports, readme.parent)),
-            (results, START, END, results_section(reports, results.parent)),
+    return [(readme, HEADLINE_START, HEADLINE_END, headline_section(reports, readme.parent, declared)),
+            (results, START, END, results_section(reports, results.parent, declared)),
             (speed, SPEED_START, SPEED_END, speed_section(reports)),
             (architecture, LAYOUT_START, LAYOUT_END,
              "\n".join([LAYOUT_START, "", layout.layout_section(package, architecture.parent), "", LAYOUT_END]))]
 
 
-def update_documents(readme: Path, docs: Path, reports: Path, package: Path, check: bool = False) -> list[Path]:
-    """Replace every generated section; return the files whose sections changed. With `check`, write nothing."""
+def update_documents(readme: Path, docs: Path, reports: Path, package: Path, declared: Mapping[str, Run],
+                     check: bool = False) -> list[Path]:
+    """Replace every generated section (the reports' runs, by name, among params' `declared` runs); return the
+    files whose sections changed. With `check`, write nothing."""
     texts: dict[Path, str] = {}
-    for document, start, end, section in generated_sections(readme, docs, reports, package):
+    for document, start, end, section in generated_sections(readme, docs, reports, package, declared):
         if document not in texts:
             if not document.is_file():
                 raise io.InputError(f"{document}: no such file; it holds the generated section {start!r}")

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from pipeline import io
+from pipeline.bench.runs import declared_runs, with_records
 from pipeline.filters import batch_filters
 from pipeline.filters.classical_filters import FilterSettings, load_settings
 from pipeline.filters.gradient_tuning import TunedFilter
@@ -130,6 +131,7 @@ def _read_json(path: Path, stage: str) -> dict:
 
 
 def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir: Path) -> None:
+    declared = declared_runs(params)
     tracker = _read_json(reports_dir / "tracker_metrics.json", "evaluate")
     sites = site_report.site_comparison(_read_json(reports_dir / "site_metrics.json", "evaluate_sites"))
     scenes = _read_json(reports_dir / "scene_metrics.json", "evaluate_scenes")
@@ -151,9 +153,9 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                                                u.turn_share, u.range_shares)
     scaled = filter_holdout.compare(holdout, params.radar, params.windows.filter_length, estimators,
                                     params.kalman_net.noise_scales, params.kalman_net.noise_seed)
-    runs = tracker["runs"]
-    comparison = {"trackers": {name: {m: values.get(m) for m in TRACKER_METRICS + GOSPA_METRICS}
-                               for name, values in runs.items()},
+    runs = with_records(tracker["runs"], declared, reports_dir / "tracker_metrics.json")
+    comparison = {"trackers": {run.name: {m: values.get(m) for m in TRACKER_METRICS + GOSPA_METRICS}
+                               for run, values in runs.items()},
                   "holdout": {**held, "raw_plot_error_m": networks["filter"]["raw_plot_error_m"],
                               "linear_extrapolation_error_m": networks["predictor"]["linear_extrapolation_error_m"],
                               "network_filter_error_m": networks["filter"]["filter_error_m"],
@@ -187,7 +189,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
             f"{params.evaluate.gospa_order:g}; best GOSPA first.", gospa_part] if gospa_part else []),
         f"## {SCENES_TITLE}", scenes_intro(comparison["scenes"], params.evaluate.gospa_cutoff_m,
                                            params.evaluate.gospa_order),
-        scenes_table(comparison["scenes"]["runs"]), "![A busy scene: tracks by identity, switches marked]"
+        scenes_table(with_records(comparison["scenes"]["runs"], declared, reports_dir / "scene_metrics.json")),
+        "![A busy scene: tracks by identity, switches marked]"
                                                    "(scene_example.png)",
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png"),

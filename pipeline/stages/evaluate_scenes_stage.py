@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline import io
 from pipeline.bench import scene_evaluation
+from pipeline.bench.runs import by_name, declared_runs
 from pipeline.params import Params
 from pipeline.reports import figures
 
@@ -26,13 +27,14 @@ def run_evaluate_scenes(params: Params, scenes_dir: Path, models_dir: Path, repo
     evaluation = scene_evaluation.prepare(params, scenes_dir, models_dir)
     target_plots = [int((scene.plots.target_id >= 0).sum()) for scene in evaluation.scenes]
     busiest, run_name = int(np.argmax(target_plots)), params.evaluate.example_run
-    runs, (updates, scored) = scene_evaluation.evaluate_all(evaluation, params.workers, (run_name, busiest))
+    example = declared_runs(params)[run_name]
+    runs, (updates, scored) = scene_evaluation.evaluate_all(evaluation, params.workers, (example, busiest))
     scenes = params.scenes
     plots = sum(len(scene.plots) for scene in evaluation.scenes)
     report = {"scenes": scenes.count, "aircraft_per_scene": scenes.aircraft, "duration_s": scenes.duration_s,
               "plots": {"target": sum(target_plots), "false": plots - sum(target_plots)},
-              "example": {"scene": evaluation.scenes[busiest].scenario_id, "run": run_name}, "runs": runs}
-    picture = figures.scene_picture(evaluation.scenes[busiest], updates, scored, evaluation.management[run_name],
+              "example": {"scene": evaluation.scenes[busiest].scenario_id, "run": run_name}, "runs": by_name(runs)}
+    picture = figures.scene_picture(evaluation.scenes[busiest], updates, scored, evaluation.management[example],
                                     params, run_name)
     io.write_json(report, reports_dir / "scene_metrics.json")
     io.write_bytes(picture, reports_dir / "scene_example.png")

@@ -12,7 +12,8 @@ import logging
 from pathlib import Path
 
 from pipeline import io
-from pipeline.bench import evaluation, sites
+from pipeline.bench import sites
+from pipeline.bench.runs import declared_runs
 from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
@@ -24,12 +25,11 @@ def training_runs(params: Params, path: Path) -> dict[str, dict]:
     if not path.is_file():
         raise io.InputError(f"{path}: file not found (run `dvc repro evaluate`)")
     runs = json.loads(path.read_text())["runs"]
-    expected = sorted(evaluation.run_management(params))  # every run and reference, by name
+    expected = sorted(declared_runs(params))  # every run and reference, by name
     if sorted(runs) != expected:
         raise io.InputError(f"{path}: runs {sorted(runs)}, but params evaluate {expected}; "
                             "run `dvc repro evaluate`")
-    at_sites = ({run.name for run in params.evaluate.runs_at_sites()}
-                | {f"{method}_reference" for method in params.evaluate.references})
+    at_sites = {run.name for run in (*params.evaluate.runs_at_sites(), *params.evaluate.reference_runs())}
     return {name: values for name, values in runs.items() if name in at_sites}
 
 

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import io
-from pipeline.bench.evaluation import evaluate_all, prepare, run_management
+from pipeline.bench.evaluation import evaluate_all, prepare, run_rule
+from pipeline.bench.runs import by_name, declared_runs
 from pipeline.bench.tracker_metrics import THESIS, THESIS_PLOTS, markdown_table
 from pipeline.learning import experiment_tracking, mlflow_models
 from pipeline.params import Params
@@ -53,12 +54,13 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
                            **{f"tracker.{k}": v for k, v in vars(params.tracker).items()}})
 
         results, per_scan, examples, by_strategy = evaluate_all(evaluation, params.workers)
-        first = results[params.evaluate.runs[0].name]
-        metrics = {"runs": results, "by_strategy": by_strategy,
+        declared = declared_runs(params)
+        first = results[declared[params.evaluate.runs[0].name]]
+        metrics = {"runs": by_name(results), "by_strategy": by_name(by_strategy),
                    "plots": {"target": first["target_plots"], "false": first["false_plots"]},
                    "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
-        table = markdown_table({name: values for name, values in results.items() if not name.endswith("_reference")})
-        example_rule = run_management(params)[params.evaluate.example_run]
+        table = markdown_table({run: values for run, values in results.items() if not run.reference})
+        example_rule = run_rule(params, declared[params.evaluate.example_run])
         pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples[scenario.scenario_id], params,
                                                                   params.evaluate.example_run, example_rule)
                     for scenario in scenarios[:params.evaluate.example_scenarios]}
@@ -72,7 +74,7 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
         for scenario_id, png in pictures.items():
             io.write_bytes(png, reports_dir / "tracks" / f"scenario_{scenario_id}.png")
 
-        mlflow.log_metrics({f"{name}.{metric}": float(value) for name, values in results.items()
+        mlflow.log_metrics({f"{run.name}.{metric}": float(value) for run, values in results.items()
                             for metric, value in values.items() if np.isfinite(value)})
         for artifact in [reports_dir / "tracker_metrics.json", reports_dir / "tracker_tables.md",
                          *sorted((reports_dir / "tracks").glob("*.png"))]:

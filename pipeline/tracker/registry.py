@@ -255,29 +255,6 @@ def compose(name: str, models: "Models", params: "TrackerParams", window_m: floa
     return replace(composition, management=management(management_rule, params))
 
 
-def run_parts(run_name: str) -> tuple[str, str, str | None]:
-    """An evaluation run's name `<method>_<window>[_<rule>]` cut into method, window and the
-    management rule it names (None when it names none)."""
-    rule = next((rule for rule in MANAGEMENT if run_name.endswith(f"_{rule}")), None)
-    method, window = (run_name.removesuffix(f"_{rule}") if rule else run_name).rsplit("_", 1)
-    return method, window, rule
-
-
-def method_of_run(run_name: str) -> Method | None:
-    """The method of an evaluation run's name (`<method>_<window>`, `<method>_<window>_<rule>`, or
-    `<reference>_reference`), None for a run that is not a registered method's (the raw-plots
-    reference)."""
-    if run_name.endswith("_reference"):
-        return METHODS.get(run_name.removesuffix("_reference"))
-    return METHODS.get(run_parts(run_name)[0])
-
-
-def family_of_run(run_name: str) -> str:
-    """The family of an evaluation run: its method's, or `reference` for every reference run."""
-    method = method_of_run(run_name)
-    return REFERENCE if run_name.endswith("_reference") or method is None else method.family
-
-
 def needs(names: list[str]) -> set[str]:
     """The pieces the methods `names` need together."""
     return {piece for name in names for piece in method(name).needs}
