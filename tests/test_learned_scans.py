@@ -11,6 +11,7 @@ with random weights (scales, corrections and spreads that differ from pair to pa
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ import torch
 
 from pipeline.learning import batch_rows
 from pipeline.learning.kalman_net import KalmanNet
+from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
 from pipeline.tracker import registry, run
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import Composition, track
@@ -45,6 +47,23 @@ def scaling_network(params) -> KalmanNet:
     with torch.no_grad():
         for parameter in model.network.parameters():
             parameter.normal_(0.0, 0.5)
+    return model.eval()
+
+
+def lstm_update(copies: int, floor_m: float) -> LSTMUpdate:
+    """An LSTM update with MC dropout over `copies` copies of a track besides its point estimate and a
+    covariance floor of `floor_m`, its cell and output weights perturbed at random (the output layer
+    otherwise reads only the features)."""
+    config = LSTMUpdateConfig(hidden=16, dropout=0.2, mc_samples=copies, detach_prediction=False,
+                              position_scale_m=1000.0, velocity_scale_mps=400.0, acceleration_scale_mps2=10.0,
+                              time_scale_s=6.0, initial_alpha=0.5, initial_beta=0.2, floor_m=floor_m,
+                              start_velocity_std_mps=170.0, calibration_ages=4, calibration_gaps=3)
+    torch.manual_seed(7)
+    model = LSTMUpdate(config)
+    with torch.no_grad():
+        for parameter in model.cell.parameters():
+            parameter.add_(torch.randn_like(parameter) * 0.1)
+        model.output.weight.add_(torch.randn_like(model.output.weight) * 0.01)
     return model.eval()
 
 
@@ -86,6 +105,22 @@ def test_the_network_scaled_filter_steps_a_scan_as_plot_by_plot(params, plots, m
     assert (scan["association"] == method).sum() > 50
     if method == "kalman_net":
         assert True in verdicts and False in verdicts
+    assert_same_updates(scan, plot_by_plot)
+
+
+@pytest.mark.parametrize("copies, floor_m", [(8, 1.0), (2, 1000.0)])
+def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot(params, plots, copies, floor_m,
+                                                                                  monkeypatch):
+    """Nearest neighbour's four plots ahead predicted in one call, and each track stepped with its MC-dropout
+    masks drawn in the order of the updates: the updates of one plot at a time; with 2 copies a track's
+    step runs on more rows than its own 3 (`batch_rows`; their spread is a line, so a floor of 1 km
+    makes the gate). Young tracks take what the window takes too (`tracker.young_window_fallback`)."""
+    model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, young_window_fallback=True)
+    scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
+        lambda: registry.compose("lstm_update", Models(lstm_update=model), tracker_params, 4000.0, 0), plots,
+        monkeypatch)
+    assert (scan["association"] == "lstm_update").sum() > 50
+    assert True in verdicts and False in verdicts
     assert_same_updates(scan, plot_by_plot)
 
 
