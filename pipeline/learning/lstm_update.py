@@ -225,23 +225,36 @@ class LSTMUpdate(nn.Module):
                           deviation / c.position_scale_m, to_frame(prior[..., 1::3]) / c.velocity_scale_mps,
                           to_frame(prior[..., 2::3]) / c.acceleration_scale_mps2, time], -1), frame
 
-    def step(self, ensemble: Ensemble, z: Tensor, R: Tensor, dt: Tensor, sample: bool
+    def step(self, ensemble: Ensemble, z: Tensor, R: Tensor, dt: Tensor, sample: bool, masks: Tensor | None = None
              ) -> tuple[Ensemble, Tensor]:
         """One plot z (B, 3), covariance R (B, 3, 3), dt (B,) s after the ensemble's estimates:
         the new ensemble and the predictions x~ (B, N, 9). `sample`: dropout masks on (training,
-        MC dropout; copy 0 of several has none), off for a deterministic estimate."""
+        MC dropout; copy 0 of several has none), off for a deterministic estimate. `masks` (B, N, 16 + H):
+        the dropout masks to use, scaled as dropout scales them (`dropout_masks`), instead of drawing
+        them from torch's generator (the tracker draws each track's from its own sequence)."""
         prior = self.predicted(ensemble.x, dt)
         f, frame = self.features(prior, z, R, dt)
         B, N, _ = f.shape
         h, c = self.cell(f.reshape(B * N, -1), (ensemble.h.reshape(B * N, -1), ensemble.c.reshape(B * N, -1)))
         read = torch.cat([f.reshape(B * N, -1), h], 1)
-        dropped = nn.functional.dropout(read, self.config.dropout, sample)
+        if masks is None:
+            dropped = nn.functional.dropout(read, self.config.dropout, sample)
+        else:
+            dropped = read * masks.reshape(B * N, -1)
         if N > 1:  # copy 0: the point estimate
             dropped = torch.cat([read.reshape(B, N, -1)[:, :1], dropped.reshape(B, N, -1)[:, 1:]], 1)
         read = dropped.reshape(B * N, -1)
         correction = (self.output(read) * self.output_scale).reshape(B, N, 3, 3)  # [axis, p/v/a] in the frame
         correction = (frame.transpose(-1, -2) @ correction).reshape(B, N, STATES)
         return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1), ensemble.age + 1), prior
+
+    def dropout_masks(self, copies: int, generator: torch.Generator) -> Tensor:
+        """One track's dropout masks (copies, 16 + H), as `nn.functional.dropout` draws them for the
+        `step` of that one track: Bernoulli(1 - p) over 1 - p, drawn from `generator` in the same
+        order, so that masks drawn track by track give the numbers of stepping the tracks one at a time."""
+        keep = 1.0 - self.config.dropout
+        masks = torch.empty((copies, FEATURES + self.config.hidden), dtype=self.dtype)
+        return masks.bernoulli_(keep, generator=generator).div_(keep)
 
     def scan_periods(self, dt: Tensor) -> Tensor:
         """The scan periods (B,) a prediction over dt (B,) s spans: dt / `time_scale_s` rounded, in

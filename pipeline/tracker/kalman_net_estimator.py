@@ -16,14 +16,23 @@ velocity unknown up to the model's spread. It starts when the track is first pre
 updated (clutter tracks, most of them, never are).
 
 The network's features need the plot (its increment and its innovation), so the network runs per
-plot: `PlotScaledGate` (the method's gate) has the estimator step the K candidate tracks of a plot
-to it in one batch (`predict_plot`: the network called once for the K), and scores them with the
-chi-square gate (`pipeline.tracker.gate.ChiSquareGate`) on the scaled filter's own innovation
-covariance S = P(q) + r R0; the chosen track's `update` resumes from that step. Measured on the
-test split (issue 17), this beats gating with the scales each track's network gave at its previous
-plot (`predict`, the protocol's prediction without a plot): GOSPA 203 m against 211 m, ROCA 0.978
-against 0.968. The covariance `update` returns is the scaled filter's posterior, which the
-consistency metrics (ANEES) read.
+(track, plot) pair: `PlotScaledGate` (the method's gate) has the estimator step the candidate tracks
+to their plots (`predict_plot`: the network called once for all the pairs it is given, a plot's K
+candidates or, the roles being `pairwise`, every pair of an antenna scan or of nearest neighbour's
+look-ahead, `pipeline.tracker.run`), and scores them with the chi-square gate
+(`pipeline.tracker.gate.ChiSquareGate`) on the scaled filter's own innovation covariance S = P(q) +
+r R0; the chosen track's `update` resumes from that step, and `update_pairs` makes a scan's updates
+in one call. Measured on the test split (issue 17), this beats gating with the scales each track's
+network gave at its previous plot (`predict`, the protocol's prediction without a plot): GOSPA 203 m
+against 211 m, ROCA 0.978 against 0.968. The covariance `update` returns is the scaled filter's
+posterior, which the consistency metrics (ANEES) read.
+
+A pair's numbers do not depend on the pairs stepped with it: the network runs on rows padded as
+`pipeline.learning.batch_rows` says (MKL's matrix products and torch's sigmoid otherwise give a row
+of a small call other last bits), and the filter's own steps are elementwise or 3 x 3 to 9 x 9
+products, each the same alone as in a batch. So a scan stepped at once gives the updates of
+stepping it plot by plot, to the bit (`tests/test_kalman_net_tracker.py`); since the padding (issue
+29) a plot's rows differ from the unpadded per-plot calls before it in the last bits.
 """
 
 from __future__ import annotations
@@ -37,6 +46,7 @@ from torch import Tensor
 
 from pipeline.filters import motion_models, torch_filters
 from pipeline.filters.torch_filters import State, Step, StepScales
+from pipeline.learning import batch_rows
 from pipeline.learning.kalman_net import KalmanNet, Memory
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import ChiSquareGate, Scores
@@ -47,7 +57,7 @@ class KalmanNetEstimator:
     """One network-scaled filter per live track, of the trained `model` (eval mode, no gradients)."""
 
     gives_covariance = True
-    pairwise = False
+    pairwise = True
     latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
     def __init__(self, model: KalmanNet, capacity: int = 64) -> None:
@@ -94,7 +104,7 @@ class KalmanNetEstimator:
             getattr(self.memory, f.name)[index] = getattr(memory, f.name)
         self.time[slots] = time
 
-    def _measured(self, tracks: LiveTracks, rows: list[int]) -> tuple[Tensor, Tensor]:
+    def _measured(self, tracks: LiveTracks, rows: list[int] | np.ndarray) -> tuple[Tensor, Tensor]:
         """The plots' positions z (K, 3) m and R0 = their covariances x r0_scale (K, 3, 3) m^2."""
         plots = tracks.plots
         return (torch.as_tensor(plots.position[rows], dtype=self.spec.dtype),
@@ -102,16 +112,25 @@ class KalmanNetEstimator:
 
     def _network(self, slots: np.ndarray, before: State, z: Tensor, R0: Tensor, dt: Tensor, fresh: bool
                  ) -> tuple[StepScales, Memory]:
-        """The network's scales for the step of the tracks at `slots` from posterior `before` to plots z
-        (K, 3) of nominal covariance R0 (K, 3, 3) after dt (K,) s, the track's first step if `fresh`, and
-        its memory after the step (`KalmanNet.step_scales`; the stored memory is left unchanged)."""
-        flags = torch.full((len(slots),), fresh), torch.full((len(slots),), not fresh)
-        return self.model.step_scales(_rows(self.memory, torch.from_numpy(slots)), Step(0, before, z, R0, dt), *flags)
+        """The network's scales for the step of the tracks at `slots` (K,) from posterior `before` to plots
+        z (K, 3) of nominal covariance R0 (K, 3, 3) after dt (K,) s, the track's first step if `fresh`,
+        and its memory after the step (`KalmanNet.step_scales`; the stored memory is left unchanged). Run
+        on the rows of `batch_rows.padding` (the scales, sigmoids, a row apiece), so that a row's numbers
+        are those of any other call."""
+        count = len(slots)
+        rows = batch_rows.padding(count, elements_each=len(self.model.config.outputs))
+        at = torch.from_numpy(rows)
+        flags = torch.full((len(rows),), fresh), torch.full((len(rows),), not fresh)
+        scales, memory = self.model.step_scales(_rows(self.memory, torch.from_numpy(slots[rows])),
+                                                Step(0, State(before.x[at], before.P[at], before.mu[at]), z[at],
+                                                     R0[at], dt[at]), *flags)
+        return (StepScales(*(None if value is None else value[:count]
+                             for value in (scales.q, scales.r, scales.manoeuvre))), _rows(memory, slice(0, count)))
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet at their first plots, with the
         network's first step (fresh: no features yet) giving R's scale."""
-        fresh = slots[np.isnan(self.time[slots])]
+        fresh = np.unique(slots[np.isnan(self.time[slots])])  # a scan's pairs hold a track once per plot
         if not len(fresh):
             return
         rows = [tracks.tracks[slot].rows[0] for slot in fresh]
@@ -122,9 +141,10 @@ class KalmanNetEstimator:
             started = torch_filters.start(self.spec, z, R0 * scales.r[:, None, None])
         self._store(fresh, started, scales, memory, tracks.plots.time[rows])
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
-        """The tracks' filters moved to `time` with the Q scales their networks gave at their last plots,
-        unchanged: positions (K, 3) and covariances (K, 3, 3), no state (no plot: no network step)."""
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
+        """The tracks' filters moved to `time` (one, or one per track: `pairwise`) with the Q scales their
+        networks gave at their last plots, unchanged: positions (K, 3) and covariances (K, 3, 3), no
+        state (no plot: no network step)."""
         self._start_filters(tracks, slots)
         index = torch.from_numpy(slots)
         dt = torch.as_tensor(time - self.time[slots], dtype=torch.float64)
@@ -134,14 +154,14 @@ class KalmanNetEstimator:
                 torch_filters.predicted(self.spec, self._state(slots), *motion))
         return Prediction(position.numpy(), covariance.numpy())
 
-    def predict_plot(self, tracks: LiveTracks, slots: np.ndarray, row: int) -> Prediction:
-        """The tracks at `slots` (K,) stepped towards plot `row` in one batch, unchanged: the network's
-        scales from the plot, and each filter predicted with its Q scale. Positions (K, 3); covariances
-        (K, 3, 3): the predicted position covariance plus the scaled measurement noise beyond the plot's
-        own, r R0 - R, so that a gate adding the plot's R to them has S = P + r R0; the state a
-        `PlotStep` for the update."""
+    def predict_plot(self, tracks: LiveTracks, slots: np.ndarray, row: int | np.ndarray) -> Prediction:
+        """The tracks at `slots` (K,) stepped towards plot `row` (one, or one per track: `pairwise`) in
+        one batch, unchanged: the network's scales from the plot, and each filter predicted with its Q
+        scale. Positions (K, 3); covariances (K, 3, 3): the predicted position covariance plus the scaled
+        measurement noise beyond the plot's own, r R0 - R, so that a gate adding the plot's R to them has
+        S = P + r R0; the state a `PlotStep` for the update."""
         self._start_filters(tracks, slots)
-        rows = [row] * len(slots)
+        rows = np.broadcast_to(row, slots.shape)
         z, R0 = self._measured(tracks, rows)
         dt = torch.as_tensor(tracks.plots.time[rows] - self.time[slots], dtype=torch.float64)
         with torch.no_grad():
@@ -160,17 +180,26 @@ class KalmanNetEstimator:
         gate made none: a young track): the new position (3,) and its covariance (3, 3)."""
         if prediction is None or prediction.state is None:
             prediction, index = self.predict_plot(tracks, np.array([slot]), row), 0
+        position, covariance = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction,
+                                                 np.array([index]))
+        return position[0], covariance[0]
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filters of the tracks at `slots` (P,), each a different track, updated each with its plot
+        of `rows` (P,) from row `indices` (P,) of a `predict_plot` step: the new positions (P, 3) and
+        covariances (P, 3, 3)."""
         step: PlotStep = prediction.state
-        at = slice(index, index + 1)
-        z, _ = self._measured(tracks, [row])
+        at = torch.from_numpy(np.asarray(indices))
+        z, _ = self._measured(tracks, rows)
         with torch.no_grad():
             posterior = torch_filters.updated(self.spec, State(step.prior.x[at], step.prior.P[at], step.prior.mu[at]),
                                               z, step.R[at])
         scales = StepScales(*(None if value is None else value[at] for value in
                               (step.scales.q, step.scales.r, step.scales.manoeuvre)))
-        self._store(np.array([slot]), posterior, scales, _rows(step.memory, at), tracks.plots.time[row])
+        self._store(slots, posterior, scales, _rows(step.memory, at), tracks.plots.time[rows])
         position, covariance = torch_filters.position_estimates(posterior)
-        return position[0].numpy(), covariance[0].numpy()
+        return position.numpy(), covariance.numpy()
 
 
 def _rows(memory: Memory, index: Tensor | slice) -> Memory:
@@ -179,7 +208,7 @@ def _rows(memory: Memory, index: Tensor | slice) -> Memory:
 
 
 class PlotStep(NamedTuple):
-    """K candidate tracks stepped towards one plot: the predicted `prior` (a State of K), the scaled
+    """K candidate tracks stepped towards their plots: the predicted `prior` (a State of K), the scaled
     measurement covariance `R` (K, 3, 3) m^2, the network's `scales` and its `memory` after the step."""
 
     prior: State
@@ -190,14 +219,16 @@ class PlotStep(NamedTuple):
 
 class PlotScaledGate:
     """The chi-square gate (`ChiSquareGate`, gate probability `probability`) on the network-scaled
-    filter's own innovation covariance: the estimator steps the candidates to the plot itself."""
+    filter's own innovation covariance: the estimator steps the candidates to the plot itself (each
+    pair to its own plot: `pairwise`)."""
 
     uses_prediction = False
-    pairwise = False
+    pairwise = True
     latest_plots = 0
 
     def __init__(self, estimator: KalmanNetEstimator, probability: float) -> None:
         self.estimator, self.chi_square = estimator, ChiSquareGate(probability)
 
-    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int, prediction: Prediction | None) -> Scores:
+    def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int | np.ndarray, prediction: Prediction | None
+                 ) -> Scores:
         return self.chi_square(tracks, slots, row, self.estimator.predict_plot(tracks, slots, row))

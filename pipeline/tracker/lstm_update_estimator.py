@@ -10,8 +10,19 @@ track's age and the scan periods predicted over), which the
 chi-square gate adds to the plot's covariance. `update` runs the LSTM step on the track's copies
 with the plot and its measurement covariance, and gives the point estimate and its calibrated
 covariance (`LSTMUpdate.estimate_covariance`: the copies' spread and the plot's covariance). Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
-from the estimator's own random state, seeded from the run's seed (the scenario's), so a scenario's
+from the estimator's own generator, seeded from the run's seed (the scenario's), so a scenario's
 tracks do not depend on what ran before it in the process (torch's global generator is left as it was).
+
+The estimator is `pairwise`: `predict` moves the tracks of a whole scan's (track, plot) pairs (or
+of nearest neighbour's look-ahead) in one call, each to its own plot's time, and `update_pairs`
+steps several tracks through the LSTM in one call, the masks drawn track by track in the order of
+the pairs (`LSTMUpdate.dropout_masks`: the draws `nn.functional.dropout` makes for one track, from
+the same generator). A pair's numbers do not depend on the pairs beside it (a call of at least
+`batch_rows.GEMM_ROWS` rows: a track's copies make them), so with nearest neighbour, the method's
+assigner, which updates one plot at a time in time order, the updates are those of scoring one plot
+at a time, to the bit (`tests/test_learned_scans.py`). Under global nearest neighbour the loop
+updates a scan's mature tracks in one call before its young ones: the masks then go to the updates
+in another order than plot by plot (as valid a draw, not the same bits).
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from pipeline.learning import batch_rows
 from pipeline.learning.lstm_update import Ensemble, LSTMUpdate
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
@@ -41,13 +53,13 @@ class LSTMUpdateEstimator:
     """One MC-dropout ensemble of the LSTM-update estimator per live track."""
 
     gives_covariance = True
-    pairwise = False
+    pairwise = True
     latest_plots = 0  # a track's first plot starts its ensemble; the ensemble keeps the rest
 
     def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64) -> None:
         self.model = model.eval()
-        self.random_state = torch.Generator().manual_seed(
-            int(np.random.SeedSequence(seed).generate_state(1)[0])).get_state()  # the dropout masks'
+        self.generator = torch.Generator().manual_seed(
+            int(np.random.SeedSequence(seed).generate_state(1)[0]))  # the dropout masks'
         self.samples, self.sample = model.ensemble()
         self.dtype = model.dtype
         self.ensemble = Ensemble(*(torch.zeros(capacity, self.samples, size, dtype=self.dtype)
@@ -73,16 +85,17 @@ class LSTMUpdateEstimator:
 
     def _start_ensembles(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the ensembles of the tracks at `slots` not started yet, at their first plots."""
-        fresh = slots[~self.started[slots]]
+        fresh = np.unique(slots[~self.started[slots]])  # a scan's pairs hold a track once per plot
         if len(fresh):
             rows = [tracks.tracks[slot].rows[0] for slot in fresh]
             z = torch.as_tensor(tracks.plots.position[rows], dtype=self.dtype)
             self._store(fresh, self.model.started(z, self.samples), tracks.plots.time[rows])
             self.started[fresh] = True
 
-    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float) -> Prediction:
-        """The tracks' ensembles moved to `time`, unchanged: predicted positions (K, 3), calibrated
-        covariances (K, 3, 3), and the ensembles with their time steps as the state (`Moved`)."""
+    def predict(self, tracks: LiveTracks, slots: np.ndarray, time: float | np.ndarray) -> Prediction:
+        """The tracks' ensembles moved to `time` (one, or one per track: `pairwise`), unchanged: predicted
+        positions (K, 3), calibrated covariances (K, 3, 3), and the ensembles with their time steps as
+        the state (`Moved`)."""
         self._start_ensembles(tracks, slots)
         index = torch.as_tensor(slots)
         ensemble = Ensemble(*(part[index] for part in _parts(self.ensemble)))
@@ -96,17 +109,32 @@ class LSTMUpdateEstimator:
                ) -> tuple[np.ndarray, np.ndarray]:
         """The track's ensemble stepped with plot `row` (its position and measurement covariance): the
         point estimate's position (3,) and its calibrated covariance (3, 3)."""
-        plots = tracks.plots
         if prediction is None:
-            prediction, index = self.predict(tracks, np.array([slot]), plots.time[row]), 0
-        moved, at = prediction.state, slice(index, index + 1)
-        z = torch.as_tensor(plots.position[row:row + 1], dtype=self.dtype)
-        R = torch.as_tensor(plots.covariance[row:row + 1], dtype=self.dtype)
-        with torch.no_grad(), torch.random.fork_rng(devices=[]):
-            torch.set_rng_state(self.random_state)
+            prediction, index = self.predict(tracks, np.array([slot]), tracks.plots.time[row]), 0
+        position, covariance = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction,
+                                                 np.array([index]))
+        return position[0], covariance[0]
+
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+                     indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ensembles of the tracks at `slots` (P,), each a different track, stepped each with its plot
+        of `rows` (P,) from row `indices` (P,) of `prediction`, in one LSTM call: the point estimates'
+        positions (P, 3) and calibrated covariances (P, 3, 3). The masks are drawn pair by pair; a call
+        of fewer than `batch_rows.GEMM_ROWS` rows (a track of 1 to 3 copies alone) runs on repeated
+        pairs, whose masks are ones (no draws)."""
+        plots, count = tracks.plots, len(slots)
+        moved = prediction.state
+        padded = batch_rows.padding(count, self.samples)
+        at = torch.as_tensor(np.asarray(indices)[padded])
+        z = torch.as_tensor(plots.position[rows[padded]], dtype=self.dtype)
+        R = torch.as_tensor(plots.covariance[rows[padded]], dtype=self.dtype)
+        masks = None
+        if self.sample:
+            drawn = [self.model.dropout_masks(self.samples, self.generator) for _ in range(count)]
+            masks = torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count))
+        with torch.no_grad():
             after, _ = self.model.step(Ensemble(*(part[at] for part in _parts(moved.ensemble))), z, R, moved.dt[at],
-                                       self.sample)
-            self.random_state = torch.get_rng_state()
+                                       self.sample, masks)
             position, covariance = self.model.estimate_covariance(after.x[..., ::3], after.age, R)
-        self._store(np.array([slot]), after, plots.time[row])
-        return position[0].numpy(), covariance[0].numpy()
+        self._store(slots, Ensemble(*(part[:count] for part in _parts(after))), plots.time[rows])
+        return position[:count].numpy(), covariance[:count].numpy()

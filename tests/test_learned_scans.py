@@ -1,0 +1,136 @@
+"""The learned trackers step a scan in one call (issue 29): their estimators and gates are `pairwise`,
+so the loop predicts, scores and updates the (track, plot) pairs of a whole antenna scan (global
+nearest neighbour) or of nearest neighbour's look-ahead (`run._track_ahead`) in one network call
+each, MC-dropout copies and MIA's samples included. The update table is the one the same tracker
+gives stepping one plot at a time (roles not `pairwise`), to the last bit, column by column.
+
+Eight flights crossing each other's paths 3 km apart among clutter (`test_kalman_tracker`), networks
+with random weights (scales, corrections and spreads that differ from pair to pair).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.learning import batch_rows
+from pipeline.learning.kalman_net import KalmanNet
+from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
+from pipeline.tracker import registry, run
+from pipeline.tracker.models import Models
+from pipeline.tracker.run import Composition, track
+from tests import tracker_fixtures as tf
+from tests.test_kalman_net_tracker import pinned_network
+from tests.test_kalman_tracker import crossing_flights_among_clutter
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+@pytest.fixture(scope="module")
+def params():
+    return tf.make_params()
+
+
+@pytest.fixture(scope="module")
+def plots(params):
+    return crossing_flights_among_clutter(params)
+
+
+def scaling_network(params) -> KalmanNet:
+    """A network-scaled CV filter whose every weight is random: scales that differ from pair to pair."""
+    model = pinned_network(params)
+    torch.manual_seed(6)
+    with torch.no_grad():
+        for parameter in model.network.parameters():
+            parameter.normal_(0.0, 0.5)
+    return model.eval()
+
+
+def lstm_update(copies: int, floor_m: float) -> LSTMUpdate:
+    """An LSTM update with MC dropout over `copies` copies of a track besides its point estimate and a
+    covariance floor of `floor_m`, its cell and output weights perturbed at random (the output layer
+    otherwise reads only the features)."""
+    config = LSTMUpdateConfig(hidden=16, dropout=0.2, mc_samples=copies, detach_prediction=False,
+                              position_scale_m=1000.0, velocity_scale_mps=400.0, acceleration_scale_mps2=10.0,
+                              time_scale_s=6.0, initial_alpha=0.5, initial_beta=0.2, floor_m=floor_m,
+                              start_velocity_std_mps=170.0, calibration_ages=4, calibration_gaps=3)
+    torch.manual_seed(7)
+    model = LSTMUpdate(config)
+    with torch.no_grad():
+        for parameter in model.cell.parameters():
+            parameter.add_(torch.randn_like(parameter) * 0.1)
+        model.output.weight.add_(torch.randn_like(model.output.weight) * 0.01)
+    return model.eval()
+
+
+def scan_and_plot_by_plot(compose: Callable[[], Composition], plots, monkeypatch
+                          ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], list[bool]]:
+    """The update tables of a tracker stepping pairs at once and of the same tracker one plot at a
+    time, and the look-ahead's verdicts (`run._unchanged_near`: True, a plot kept its scores)."""
+    verdicts = []
+    unchanged_near = run._unchanged_near
+
+    def watched(*args):
+        verdicts.append(unchanged_near(*args))
+        return verdicts[-1]
+
+    monkeypatch.setattr(run, "_unchanged_near", watched)
+    tables = []
+    for pairwise in (True, False):
+        tracker = compose()
+        tracker.estimator.pairwise = pairwise
+        assert tracker.pairwise == pairwise
+        tables.append(track(plots, tracker))
+    return tables[0], tables[1], verdicts
+
+
+def assert_same_updates(scan: dict[str, np.ndarray], plot_by_plot: dict[str, np.ndarray]) -> None:
+    assert scan.keys() == plot_by_plot.keys()
+    for column, values in scan.items():
+        np.testing.assert_array_equal(values, plot_by_plot[column], err_msg=column)
+
+
+@pytest.mark.parametrize("method", ["kalman_net", "kalman_net_gnn"])
+def test_the_network_scaled_filter_steps_a_scan_as_plot_by_plot(params, plots, method, monkeypatch):
+    """The network steps every (track, plot) pair of a scan, or of four plots ahead, in one call;
+    the updates are those of one plot at a time, through both kinds of look-ahead plot (kept, scored
+    again)."""
+    model = scaling_network(params)
+    scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
+        lambda: registry.compose(method, Models(kalman_net=model), params.tracker, 4000.0, 0), plots, monkeypatch)
+    assert (scan["association"] == method).sum() > 50
+    if method == "kalman_net":
+        assert True in verdicts and False in verdicts
+    assert_same_updates(scan, plot_by_plot)
+
+
+@pytest.mark.parametrize("copies, floor_m", [(8, 1.0), (2, 1000.0)])
+def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot(params, plots, copies, floor_m,
+                                                                                  monkeypatch):
+    """Nearest neighbour's four plots ahead predicted in one call, and each track stepped with its MC-dropout
+    masks drawn in the order of the updates: the updates of one plot at a time; with 2 copies a track's
+    step runs on more rows than its own 3 (`batch_rows`; their spread is a line, so a floor of 1 km
+    makes the gate). Young tracks take what the window takes too (`tracker.young_window_fallback`)."""
+    model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, young_window_fallback=True)
+    scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
+        lambda: registry.compose("lstm_update", Models(lstm_update=model), tracker_params, 4000.0, 0), plots,
+        monkeypatch)
+    assert (scan["association"] == "lstm_update").sum() > 50
+    assert True in verdicts and False in verdicts
+    assert_same_updates(scan, plot_by_plot)
+
+
+@pytest.mark.parametrize("count, rows_each, elements_each, expected", [
+    (1, 1, 16, 4), (5, 1, 16, 5),    # at least 4 rows for MKL's matrix products
+    (1, 1, 2, 8), (9, 1, 2, 16),     # 2 sigmoids a row: whole steps of 16
+    (1, 17, 17 * 32, 1), (1, 2, 2, 8),  # an LSTM track's 17 copies make 4 rows alone
+])
+def test_padding_makes_whole_matrix_and_vector_steps(count, rows_each, elements_each, expected):
+    """The rows a call runs: the items, then the last one again up to the count `batch_rows` asks."""
+    rows = batch_rows.padding(count, rows_each, elements_each)
+    assert len(rows) == expected
+    np.testing.assert_array_equal(rows, np.minimum(np.arange(expected), count - 1))
