@@ -10,10 +10,13 @@ from pathlib import Path
 import pytest
 
 from pipeline import io
+from pipeline.bench.runs import declared_runs
 from pipeline.reports import layout, readme
+from pipeline.settings import load_params
 from tests.project import REPOSITORY
 
 README = REPOSITORY / "README.md"
+DECLARED = declared_runs(load_params(REPOSITORY / "params.yaml"))
 PAGES = sorted((REPOSITORY / "docs").glob("*.md"))
 PENDING = {REPOSITORY / "docs" / "params.md"}  # the params reference, written on its own branch (issue 28, item 2)
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
@@ -103,11 +106,11 @@ def test_a_missing_marker_or_page_is_named(tmp_path: Path) -> None:
     speed.write_text(speed.read_text().replace(readme.SPEED_END, ""))
     with pytest.raises(io.InputError, match="speed.md: the markers .* are missing"):
         readme.update_documents(tmp_path / "README.md", tmp_path / "docs", REPOSITORY / "reports",
-                                REPOSITORY / "pipeline", check=True)
+                                REPOSITORY / "pipeline", DECLARED, check=True)
     speed.unlink()
     with pytest.raises(io.InputError, match="speed.md: no such file"):
         readme.update_documents(tmp_path / "README.md", tmp_path / "docs", REPOSITORY / "reports",
-                                REPOSITORY / "pipeline", check=True)
+                                REPOSITORY / "pipeline", DECLARED, check=True)
 
 
 def test_the_generated_sections_are_written_where_they_are_held(tmp_path: Path) -> None:
@@ -124,7 +127,7 @@ def test_the_generated_sections_are_written_where_they_are_held(tmp_path: Path) 
         head, rest = text.split(start)
         (tmp_path / source.relative_to(REPOSITORY)).write_text(head + start + "\n" + end + rest.split(end)[1])
     changed = readme.update_documents(tmp_path / "README.md", tmp_path / "docs", tmp_path / "reports",
-                                      package_copy(tmp_path))
+                                      package_copy(tmp_path), DECLARED)
     assert sorted(changed) == sorted(tmp_path / source.relative_to(REPOSITORY) for source in empty)
     for source in empty:
         assert (tmp_path / source.relative_to(REPOSITORY)).read_text() == source.read_text()

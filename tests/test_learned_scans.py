@@ -101,7 +101,7 @@ def test_the_network_scaled_filter_steps_a_scan_as_plot_by_plot(params, plots, m
     again)."""
     model = scaling_network(params)
     scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
-        lambda: registry.compose(method, Models(kalman_net=model), params.tracker, 4000.0, 0), plots, monkeypatch)
+        lambda: registry.compose(method, Models({"kalman_net": model}), params.tracker, 4000.0, 0), plots, monkeypatch)
     assert (scan["association"] == method).sum() > 50
     if method == "kalman_net":
         assert True in verdicts and False in verdicts
@@ -117,7 +117,7 @@ def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot
     makes the gate). Young tracks take what the window takes too (`tracker.young_window_fallback`)."""
     model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, young_window_fallback=True)
     scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
-        lambda: registry.compose("lstm_update", Models(lstm_update=model), tracker_params, 4000.0, 0), plots,
+        lambda: registry.compose("lstm_update", Models({"lstm_update": model}), tracker_params, 4000.0, 0), plots,
         monkeypatch)
     assert (scan["association"] == "lstm_update").sum() > 50
     assert True in verdicts and False in verdicts

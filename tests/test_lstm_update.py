@@ -218,7 +218,7 @@ def test_estimate_factors_recover_the_spread_and_plot_shares_of_gaussian_errors(
 def test_compare_puts_the_lstm_update_in_the_estimator_table_with_every_column():
     """The compare stage's hold-out table: one row per estimator, best first, with turns, straight
     flight, ANEES (marked when inside its bounds) and the share within each share of the range."""
-    from pipeline.stages.compare_stage import estimator_table
+    from pipeline.reports.comparison_tables import estimator_table
 
     def scored(mean: float, anees: float) -> dict:
         return {"mean_error_m": mean, "rmse_m": mean * 1.3, "p95_error_m": mean * 2.7, "anees": anees,

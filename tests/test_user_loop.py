@@ -237,7 +237,7 @@ def stop_filter_training(tiny_run: TinyRun, epochs: int, signal_number: int, log
                                    stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + 600
-        while "train filter: epoch 1/" not in log.read_text():
+        while "the filter network: epoch 1/" not in log.read_text():
             assert process.poll() is None, f"dvc repro ended before training the filter:\n{log.read_text()}"
             assert time.monotonic() < deadline, "the filter's training did not start in 10 minutes"
             time.sleep(0.1)
