@@ -365,7 +365,7 @@ def _time_type_reason(kind: pa.DataType) -> str:
     if pa.types.is_floating(kind):
         return f"a {kind} cannot hold a present-day Unix time: write the times as float64 Unix seconds"
     if pa.types.is_integer(kind):
-        return (f"integer times could be seconds, milliseconds or nanoseconds, which is not guessed: write them "
+        return ("integer times could be seconds, milliseconds or nanoseconds, which is not guessed: write them "
                 "as float64 Unix seconds")
     return f"Unix seconds are read from float64 only, not converted from {kind}: write them as float64 Unix seconds"
 

@@ -22,6 +22,7 @@ from pipeline.learning.kalman_net import KalmanNet
 from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
 from pipeline.tracker import registry, run
 from pipeline.tracker.models import Models
+from pipeline.tracker.draws import PairDraws
 from pipeline.tracker.run import Composition, track
 from tests import tracker_fixtures as tf
 from tests.test_kalman_net_tracker import pinned_network
@@ -122,6 +123,33 @@ def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot
     assert (scan["association"] == "lstm_update").sum() > 50
     assert True in verdicts and False in verdicts
     assert_same_updates(scan, plot_by_plot)
+
+
+@pytest.mark.parametrize("method", ["radius", "via", "mia", "ae"])
+def test_the_thesis_networks_score_a_look_ahead_at_once_as_plot_by_plot(params, plots, method, monkeypatch,
+                                                                        tmp_path_factory):
+    """The predictor runs once for every (track, plot) pair of four plots ahead, MIA's samples of every
+    pair in the same call (each pair's its own draws, `pipeline.tracker.draws`), the autoencoder once
+    for all of them, and a scan's filter-network updates in one call: the updates of one plot at a
+    time, to the bit, through both kinds of look-ahead plot."""
+    models = tf.load_models(tf.trained_models(tmp_path_factory))
+    scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
+        lambda: registry.compose(method, models, params.tracker, 4000.0, 0), plots, monkeypatch)
+    assert (scan["association"] == method).sum() > 50
+    assert True in verdicts and False in verdicts
+    assert_same_updates(scan, plot_by_plot)
+
+
+def test_a_pairs_draws_are_its_own_in_any_call():
+    """MIA's samples of a (track, plot) pair do not depend on the pairs drawn with it, or on the order."""
+    draws = PairDraws(7)
+    together = draws.normals(np.array([3, 5, 3]), np.array([100, 100, 101]), 4)
+    assert together.shape == (12, 3)
+    np.testing.assert_array_equal(together[4:8], draws.normals(np.array([5]), np.array([100]), 4))
+    np.testing.assert_array_equal(together[:4], PairDraws(7).normals(np.array([3]), np.array([100]), 4))
+    assert not np.array_equal(together[:4], together[8:])  # another plot, other draws
+    assert not np.array_equal(together[:4], PairDraws(8).normals(np.array([3]), np.array([100]), 4))
+    assert abs(PairDraws(1).normals(np.arange(2000), np.zeros(2000), 1).std() - 1.0) < 0.03
 
 
 @pytest.mark.parametrize("count, rows_each, elements_each, expected", [

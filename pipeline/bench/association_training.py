@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pipeline.learning.kinds import Kind
-from pipeline.learning.recipe import Folders, Inputs, Outcome, Recipe, Trained, section_params
+from pipeline.learning.recipe import Folders, Inputs, Outcome, Recipe, SectionRecipe, Trained
 
 if TYPE_CHECKING:
     from torch import nn
@@ -23,14 +23,10 @@ if TYPE_CHECKING:
     from pipeline.params import Params
 
 
-class AssociationNetRecipe:
+class AssociationNetRecipe(SectionRecipe):
     """The association network's training on fresh scenes, then the methods scored against the bias."""
 
-    def knobs(self, params: Params) -> Any:
-        return params.association
-
-    def logged(self, params: Params) -> dict[str, Any]:
-        return section_params("association", params.association)
+    section = "association"
 
     def data(self, params: Params, folders: Folders) -> Inputs:
         from pipeline.bench import association_report

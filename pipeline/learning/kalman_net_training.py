@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from typing import Any
 
 import pyarrow as pa
 from torch import nn
@@ -25,7 +24,7 @@ from pipeline.learning import materials
 from pipeline.learning.filter_training import descent, training_segments
 from pipeline.learning.fit import Task, fit
 from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig
-from pipeline.learning.recipe import Folders, Inputs, Outcome, Trained, section_params
+from pipeline.learning.recipe import Folders, Inputs, Outcome, SectionRecipe, Trained
 from pipeline.params import Params
 from pipeline.sections import subset
 from pipeline.simulation import simulate
@@ -53,14 +52,10 @@ def training_material(params: Params, plots: pa.Table, holdout: pa.Table) -> Seq
                              params.tracker.young_track_plots, k.segment_plots, k.truncation_steps, "kalman_net")
 
 
-class KalmanNetRecipe:
+class KalmanNetRecipe(SectionRecipe):
     """The network-scaled filter's training, then its gradient-tuned baselines on the same segments."""
 
-    def knobs(self, params: Params) -> Any:
-        return params.kalman_net
-
-    def logged(self, params: Params) -> dict[str, Any]:
-        return section_params("kalman_net", params.kalman_net)
+    section = "kalman_net"
 
     def data(self, params: Params, folders: Folders) -> Inputs:
         plots_path = folders.simulated / params.kalman_net.split / "plots.parquet"

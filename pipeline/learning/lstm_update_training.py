@@ -17,7 +17,6 @@ input (params, material, the tuned filters) fails before training. Writes `model
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 from torch import nn
@@ -28,7 +27,7 @@ from pipeline.filters.torch_filters import FilterSpec, SequenceBatch
 from pipeline.learning import filter_holdout, lstm_update, materials, model_eval, validation_split, windows
 from pipeline.learning.filter_training import descent, training_segments
 from pipeline.learning.fit import Task
-from pipeline.learning.recipe import Folders, Inputs, Outcome, Trained, section_params
+from pipeline.learning.recipe import Folders, Inputs, Outcome, SectionRecipe, Trained
 from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
 from pipeline.params import Params
 from pipeline.sections import subset
@@ -48,14 +47,10 @@ class Material:
     tuned: dict[str, FilterSettings]
 
 
-class LSTMUpdateRecipe:
+class LSTMUpdateRecipe(SectionRecipe):
     """The LSTM update's training, then its calibration and its hold-out against the tuned CA and IMM."""
 
-    def knobs(self, params: Params) -> Any:
-        return params.lstm_update
-
-    def logged(self, params: Params) -> dict[str, Any]:
-        return section_params("lstm_update", params.lstm_update)
+    section = "lstm_update"
 
     def data(self, params: Params, folders: Folders) -> Inputs:
         u = params.lstm_update

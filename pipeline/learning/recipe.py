@@ -89,6 +89,19 @@ class Recipe(Protocol):
     def holdout(self, trained: Trained) -> Outcome: ...
 
 
+class SectionRecipe:
+    """The `knobs` and `logged` of a recipe whose knobs are one params section, named by `section`
+    (`kalman_net`, `lstm_update`, `association`): the section, logged whole as `<section>.<key>`."""
+
+    section: str
+
+    def knobs(self, params: Params) -> Any:
+        return getattr(params, self.section)
+
+    def logged(self, params: Params) -> dict[str, Any]:
+        return section_params(self.section, self.knobs(params))
+
+
 def section_params(prefix: str, section: object) -> dict[str, Any]:
     """A params section's values as an MLflow run logs them: `<prefix>.<key>`."""
     return {f"{prefix}.{key}": value for key, value in asdict(section).items()}

@@ -82,9 +82,9 @@ def scaled_filter_tables(detailed: dict, result: dict) -> list[str]:
     for name, errors in result["mean_error_by_noise_m"].items():
         noise.append(f"| {name} | " + " | ".join(f"{e:.1f}" for e in errors) + " |")
     return [estimator_table(detailed),
-            f"Mean error with the hold-out plots measured again from the truth, the radar's sigmas times each factor "
-            f"(unknown to every filter, which keeps the nominal R; one draw per factor, seed "
-            f"`kalman_net.noise_seed`):", "\n".join(noise), "![Mean error against the noise factor](noise_scales.png)"]
+            "Mean error with the hold-out plots measured again from the truth, the radar's sigmas times each factor "
+            "(unknown to every filter, which keeps the nominal R; one draw per factor, seed "
+            "`kalman_net.noise_seed`):", "\n".join(noise), "![Mean error against the noise factor](noise_scales.png)"]
 
 
 

@@ -107,11 +107,9 @@ def _via(models: "Models", params: "TrackerParams", window_m: float, seed: Seed)
 
 
 def _mia(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-    import numpy as np
-
     from pipeline.tracker.network_gates import MonteCarloGate
     estimator = _network_estimator(models)
-    return _composition("mia", estimator, MonteCarloGate(estimator, params, np.random.default_rng(seed)),
+    return _composition("mia", estimator, MonteCarloGate(estimator, params, seed),
                         params.young_track_plots, window_m, params, learned=(False, True))
 
 
