@@ -40,7 +40,7 @@ def _holds_sections(path: str) -> bool:
     """Whether the declared key `path` (or a section above it that is no key) holds sections of knobs."""
     if path not in DECLARED:
         return True  # `simulate`, `report`, `compute`: mappings of top-level knobs
-    return any(key.startswith(path + ".") or key.startswith(path + "[]") for key in DECLARED)
+    return any(key.startswith((path + ".", path + "[]")) for key in DECLARED)
 
 
 def test_every_key_of_params_yaml_is_declared() -> None:

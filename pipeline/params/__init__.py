@@ -17,8 +17,8 @@ from pipeline.params.tracking import (Associate, Evaluate, EvaluationRun, Fusion
 from pipeline.params.world import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, RandomTurns, Radar, Routes, Scenes,
                                    Split, SustainedTurns, Windows, formation_resolution_m)
 
-__all__ = ["TUNING_COSTS", "STRATEGIES", "Aircraft", "Associate", "Association", "ClimbDive", "ConstantJerk",
-           "Evaluate", "EvaluationRun", "Fusion", "FusionRadar", "Kalman", "KalmanNet", "LSTMUpdate", "NetworkTraining",
-           "ParamError", "Params", "ParamsLoader", "RandomTurns", "Radar", "Routes", "Scenes", "Site", "Split",
-           "SustainedTurns", "TrackerParams", "Training", "Windows", "formation_resolution_m", "load_params_tree",
-           "parse_tree"]
+__all__ = ["STRATEGIES", "TUNING_COSTS", "Aircraft", "Associate", "Association", "ClimbDive", "ConstantJerk",
+           "Evaluate", "EvaluationRun", "Fusion", "FusionRadar", "Kalman", "KalmanNet", "LSTMUpdate",
+           "NetworkTraining", "ParamError", "Params", "ParamsLoader", "Radar", "RandomTurns", "Routes", "Scenes",
+           "Site", "Split", "SustainedTurns", "TrackerParams", "Training", "Windows", "formation_resolution_m",
+           "load_params_tree", "parse_tree"]

@@ -8,7 +8,7 @@ lists of numbers or names, weights, nested sections, mappings and lists of secti
 no key of params.yaml (a name the user gave the entry, a value derived from other sections) is
 declared `given()`. Rules across a section's knobs are the section's `check` method, run once the
 section is read. Errors name the key and the value (``radar.latitude_deg = 95.0: must be in [-90.0,
-90.0]``); a key no declaration reads is named with the nearest known one (`_Section.unread`).
+90.0]``); a key no declaration reads is named with the nearest known one (`Tracked.unread`).
 """
 
 from __future__ import annotations
@@ -71,13 +71,15 @@ def given(default: Any = dataclasses.MISSING) -> Any:
 
 class Section:
     """Base of every section: `check` holds the rules across its knobs (and against the sections read
-    before it, in `context`), raising ParamError; it returns the section, with derived fields filled."""
+    before it, in `context`), raising ParamError; it returns the section, with derived fields filled. The
+    parser runs it, not `__post_init__`: `dataclasses.replace` (a site's radar, a run's rule) builds a
+    section without the other sections its rules read."""
 
     def check(self, path: str, context: Mapping[str, Any]) -> Any:
         return self
 
 
-class _Section(Mapping):
+class Tracked(Mapping):
     """A mapping of the params tree that remembers which of its keys the parser read.
 
     The parser's reads are the one list of known keys: whatever it never read is a key nobody
@@ -113,7 +115,7 @@ class _Section(Mapping):
         for key, value in self._values.items():
             if key in self._read:
                 for child in value if isinstance(value, list) else [value]:
-                    if isinstance(child, _Section):
+                    if isinstance(child, Tracked):
                         problems += child.unread()
                 continue
             near = difflib.get_close_matches(str(key), [str(known) for known in self._read], n=1)
@@ -125,7 +127,7 @@ class _Section(Mapping):
 
 def _tracked(value: Any, path: str) -> Any:
     if isinstance(value, Mapping):
-        return _Section(value, path)
+        return Tracked(value, path)
     if isinstance(value, list):
         return [_tracked(item, f"{path}[{index}]") for index, item in enumerate(value)]
     return value
@@ -209,6 +211,9 @@ def _names(value: Any, path: str, meta: Mapping[str, Any]) -> tuple:
     return tuple(value)
 
 
+WEIGHT = {"low": 0.0, "high": INF, "open_low": False, "open_high": False, "why": ""}
+
+
 def _weights(value: Any, path: str, known: list[str], what: str) -> dict[str, float]:
     """A mapping of some of `known` names to weights >= 0, not all zero (an aircraft mix, strategy weights)."""
     if not isinstance(value, Mapping) or not value:
@@ -216,13 +221,10 @@ def _weights(value: Any, path: str, known: list[str], what: str) -> dict[str, fl
     for name in value:
         if name not in known:
             raise ParamError(f"{path}.{name}: unknown {what} (known: {sorted(known)})")
-    weights = {name: number(value[name], f"{path}.{name}", dict(WEIGHT)) for name in value}
+    weights = {name: number(value[name], f"{path}.{name}", WEIGHT) for name in value}
     if sum(weights.values()) <= 0.0:
-        raise ParamError(f"{path} = {dict(weights)}: weights must not all be zero")
+        raise ParamError(f"{path} = {weights}: weights must not all be zero")
     return weights
-
-
-WEIGHT = dict(low=0.0, high=INF, open_low=False, open_high=False, why="")
 
 
 def weights_of(known: str | tuple[str, ...], what: str) -> Callable:
@@ -278,17 +280,19 @@ def value_of(kind: Any, meta: Mapping[str, Any], tree: Any, key: str, path: str,
 def _named(cls: type, value: Any, path: str, context: dict[str, Any]) -> dict[str, Any]:
     """Sections the user names (aircraft types, splits): a non-empty mapping, each entry given its name."""
     if not isinstance(value, Mapping) or not value:
-        raise ParamError(f"{path} = {value!r}: must name at least one {cls.__name__.lower()}")
+        raise ParamError(f"{path} = {value!r}: must name at least one {cls.__name__.lower()} (a mapping of names "
+                         "to sections)")
     return {name: parse_section(cls, value[name], f"{path}.{name}", context, dict(name=name)) for name in value}
 
 
-def _is_named(cls: type) -> bool:
+def is_named(cls: type) -> bool:
+    """Whether the user names the section's entries (its `name` is given): aircraft types, splits."""
     return any(field.name == "name" and field.metadata.get("given") for field in dataclasses.fields(cls))
 
 
 def _entries(cls: type, value: Any, path: str, context: dict[str, Any]) -> tuple:
     """A list of sections, each a mapping (of named ones when the section's `name` is given)."""
-    if _is_named(cls):
+    if is_named(cls):
         return tuple(_named(cls, value, path, context).values())
     keys = ", ".join(field.name for field in dataclasses.fields(cls) if not field.metadata.get("given"))
     if not isinstance(value, list):
@@ -372,7 +376,7 @@ def declared(cls: type, path: str = "", entry: str | None = None) -> Iterator[tu
         for key in keys:
             yield key, field, kind
             if inner is not None:
-                tail = "" if _section_of(kind) or meta["keys"] else ".<name>" if _is_named(inner) else "[]"
+                tail = "" if _section_of(kind) or meta["keys"] else ".<name>" if is_named(inner) else "[]"
                 yield from declared(inner, key + tail, key.rsplit(".", 1)[-1] if meta["keys"] else None)
 
 

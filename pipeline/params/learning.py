@@ -19,6 +19,8 @@ TRACK_MODELS = ("kalman", "two_point")          # association.tracks: how the sy
 MIN_SCENE_SIZE = 10                             # association.scene_size: the network's convolutions need this much
 NETWORKS = ("filter", "predictor", "autoencoder")
 SIZES = "must be a list of positive layer sizes"
+PATIENCE = {"early_stopping_patience": ", so it could never stop a run (0 turns early stopping off)",
+            "lr_decay_patience": " (0 turns the decay off)"}
 
 
 @dataclass(frozen=True)
@@ -47,13 +49,10 @@ class NetworkTraining(Section):
         if kind == "filter" and self.output_steps > windows.filter_length:
             raise ParamError(f"{path}.output_steps = {self.output_steps}: above windows.filter_length = "
                              f"{windows.filter_length}")
-        for key in ("early_stopping_patience", "lr_decay_patience"):
+        for key, why in PATIENCE.items():
             if getattr(self, key) > self.epochs:
-                off = "so it could never stop a run (0 turns early stopping off)" if key[0] == "e" else \
-                    "(0 turns the decay off)"
-                raise ParamError(f"{path}.{key} = {getattr(self, key)}: above {path}.epochs = {self.epochs}"
-                                 f"{', ' if key[0] == 'e' else ' '}{off}")
-        for key in ("early_stopping_patience", "lr_decay_patience"):
+                raise ParamError(f"{path}.{key} = {getattr(self, key)}: above {path}.epochs = {self.epochs}{why}")
+        for key in PATIENCE:
             if getattr(self, key) and not self.validation_fraction:
                 raise ParamError(f"{path}.{key} = {getattr(self, key)}: needs validation windows, but "
                                  f"{path}.validation_fraction = 0")

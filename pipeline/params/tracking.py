@@ -8,7 +8,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
-from pipeline.params.declare import ParamError, Section, _Section, build, get, given, knob, parse_section, positive
+from pipeline.params.declare import ParamError, Section, Tracked, build, get, given, knob, parse_section, positive
 from pipeline.params.learning import Association, KalmanNet, Kalman, LSTMUpdate, Training
 from pipeline.params.world import Aircraft, Radar, Routes, Scenes, Windows, split_knob
 
@@ -236,7 +236,8 @@ class Fusion(Section):
     methods: tuple[str, ...] = knob("track-to-track association methods compared (distinct)",
                                     why="must be a list of association method names")
     radars: tuple[FusionRadar, FusionRadar] = knob("exactly two: params' radar with the entry's keys changed (any "
-                                                   "radar key), its registration bias and its seed", read=_fusion_radars)
+                                                   "radar key), its registration bias and its seed",
+                                                   read=_fusion_radars)
     sweep_scenes: int = knob("the bias sweep (fusion_bias_sweep) on the first this many scenes, at most scenes", 1)
     sweep_bias_m: tuple[float, ...] = knob("radar 2's site error lengths there (its range and azimuth biases 0)", 0.0)
 
@@ -295,7 +296,7 @@ def parse_tree(tree: Mapping[str, Any], name_checks: Sequence[Callable[[Params],
     their registries, which this ground-floor package does not import: `name_checks` (each raising
     ParamError) check them, before the rules across sections, so that a misspelt method is named as
     such (`pipeline.settings.parse_params` passes every registry's)."""
-    tracked = _Section(tree, "")
+    tracked = Tracked(tree, "")
     params = build(Params, tracked, "", {"tree": tracked})
     unknown = tracked.unread()
     if unknown:

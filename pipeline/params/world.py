@@ -34,8 +34,7 @@ class Radar(Section):
     reference_snr_db: float = knob("mean SNR of a reference_rcs_m2 target at reference_range_m")
     reference_range_m: float = positive("range of the reference SNR")
     reference_rcs_m2: float = positive("RCS of the reference SNR")
-    false_alarm_probability: float = knob("per resolution cell; sets the detection threshold", 0.0, 1.0,
-                                          open_low=True)
+    false_alarm_probability: float = knob("per resolution cell; sets the detection threshold", 0.0, 1.0, open_low=True)
     false_plots_per_scan: float = knob("Poisson mean (~10 false plots per target plot, as the thesis's data)", 0.0)
     horizon: bool = knob("targets below the radar horizon are not detected")
     effective_earth_radius_factor: float = positive("refraction: 4/3 is the standard earth")
@@ -114,7 +113,8 @@ class RandomTurns(Section):
 
 @dataclass(frozen=True)
 class SustainedTurns(Section):
-    """`routes.sustained_turns` (ours, issue 13): holding patterns and calibration orbits, constant speed and altitude."""
+    """`routes.sustained_turns` (ours, issue 13): holding patterns and calibration orbits, constant speed and
+    altitude."""
 
     holding_probability: float = knob("a holding pattern (racetrack), else an orbit of 360 deg turns", 0.0, 1.0)
     turn_rate_min_dps: float = positive("[lower, upper] turn rate drawn per route, capped by the type's turn rate and "
@@ -126,8 +126,7 @@ class SustainedTurns(Section):
     holding_leg_min_s: float = positive("[lower, upper] straight legs between a holding pattern's 180 deg turns "
                                         "(ICAO Doc 8168: 1 min up to 14000 ft, 1.5 min above)", pair=True)
     holding_leg_max_s: float = upper("longest holding leg")
-    straight_min_s: float = knob("[lower, upper] the straight entry leg and, drawn again, the exit leg", 0.0,
-                                 pair=True)
+    straight_min_s: float = knob("[lower, upper] the straight entry leg and, drawn again, the exit leg", 0.0, pair=True)
     straight_max_s: float = upper("longest entry or exit leg")
     attempts: int = knob("redraws of a route that leaves the coverage box", 1)
 
@@ -155,11 +154,12 @@ class ClimbDive(Section):
     attempts: int = knob("redraws of a route shorter than min_length_m", 1)
 
     def check(self, path: str, context: Mapping[str, Any]) -> ClimbDive:
+        change = [self.altitude_change_min_m, self.altitude_change_max_m]
         for kind in context["aircraft"].values():
-            if self.altitude_change_min_m > (kind.altitude_max_m - kind.altitude_min_m) / 2.0:
-                raise ParamError(f"{path}.altitude_change_m = {[self.altitude_change_min_m, self.altitude_change_max_m]}"
-                                 f": the smallest change is above half the altitude band of aircraft.{kind.name} "
-                                 f"({kind.altitude_min_m}-{kind.altitude_max_m} m), so neither a climb nor a dive may fit")
+            if change[0] > (kind.altitude_max_m - kind.altitude_min_m) / 2.0:
+                raise ParamError(f"{path}.altitude_change_m = {change}: the smallest change is above half the "
+                                 f"altitude band of aircraft.{kind.name} ({kind.altitude_min_m}-{kind.altitude_max_m} "
+                                 "m), so neither a climb nor a dive may fit")
         return self
 
 
@@ -209,10 +209,11 @@ class Routes(Section):
         seeds = [split.seed for split in self.splits]
         if len(set(seeds)) != len(seeds):
             raise ParamError(f"{path}.splits seeds = {seeds}: every split needs its own seed so no route repeats")
+        ceiling = context["radar"].altitude_max_m
         for kind in context["aircraft"].values():
-            if kind.altitude_max_m > context["radar"].altitude_max_m:
+            if kind.altitude_max_m > ceiling:
                 raise ParamError(f"aircraft.{kind.name}.altitude_m upper bound {kind.altitude_max_m} is above "
-                                 f"radar.altitude_max_m = {context['radar'].altitude_max_m}: routes must stay in coverage")
+                                 f"radar.altitude_max_m = {ceiling}: routes must stay in coverage")
         return self
 
 
@@ -280,13 +281,14 @@ class Scenes(Section):
         capacity = int(2.0 * radar.range_max_m ** 2 / (math.sqrt(3.0) / 2.0 * self.separation_m ** 2))
         if self.aircraft > capacity:
             raise ParamError(f"{path}.aircraft = {self.aircraft}: more than the {capacity} that fit the coverage box "
-                             f"(side sqrt(2) x radar.range_max_m) {self.separation_m:.0f} m apart (scenes.separation_m)")
+                             f"(side sqrt(2) x radar.range_max_m) {self.separation_m:.0f} m apart "
+                             "(scenes.separation_m)")
         resolution = formation_resolution_m(radar, self.situation_range_max_m)
         if self.formation_spacing_min_m <= resolution:
-            raise ParamError(f"{path}.formation_spacing_m = {[self.formation_spacing_min_m, self.formation_spacing_max_m]}"
-                             f": the closest formation, {self.formation_spacing_min_m:.0f} m apart, is within the "
-                             f"radar's resolution, {resolution:.0f} m at {self.situation_range_max_m:.0f} m (the far "
-                             "end of scenes.situation_range_m)")
+            spacing = [self.formation_spacing_min_m, self.formation_spacing_max_m]
+            raise ParamError(f"{path}.formation_spacing_m = {spacing}: the closest formation, {spacing[0]:.0f} m "
+                             f"apart, is within the radar's resolution, {resolution:.0f} m at "
+                             f"{self.situation_range_max_m:.0f} m (the far end of scenes.situation_range_m)")
         return self
 
 

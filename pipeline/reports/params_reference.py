@@ -8,7 +8,7 @@ import typing
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
-from pipeline.params.declare import INF, declared, interval_text, load_params_tree
+from pipeline.params.declare import INF, declared, interval_text, is_named, load_params_tree
 from pipeline.params.tracking import Params
 
 HEAD = ("# Params reference\n\nEvery key of `params.yaml`, written from its declaration in `pipeline/params/` by "
@@ -24,31 +24,38 @@ def values_at(tree: Any, key: str) -> list[Any]:
         step = []
         for node in found:
             if part in ("<name>", "[]"):
-                step += list(node.values()) if isinstance(node, Mapping) else list(node) if isinstance(node, list) else []
+                step += list(node.values() if isinstance(node, Mapping) else node if isinstance(node, list) else [])
             elif isinstance(node, Mapping) and part in node:
                 step.append(node[part])
         found = step
     return found
 
 
-def type_text(field: dataclasses.Field, kind: Any) -> str:
-    meta, args = field.metadata, typing.get_args(kind)
-    if meta["pair"]:
-        return "[lower, upper] of " + ("int" if (args[0] if args else kind) is int else "float")
-    if meta["read"] is not None and meta["keys"]:
-        return "list of float"
-    if typing.get_origin(kind) is tuple:
-        inner = args[0]
-        return f"list of {getattr(inner, '__name__', inner)}" if not dataclasses.is_dataclass(inner) else "list"
-    if meta["keys"]:
-        inner = args[1]
-        return "section" if dataclasses.is_dataclass(inner) else getattr(inner, "__name__", str(inner))
-    if dataclasses.is_dataclass(kind) or (args and dataclasses.is_dataclass(args[-1])):
+def _name(kind: Any) -> str:
+    return getattr(kind, "__name__", str(kind)).replace("NoneType", "absent")
+
+
+def type_text(field: dataclasses.Field, kind: Any, found: list[Any]) -> str:
+    """The knob's type as params.yaml writes it (a `keys` mapping: each key's; a knob of its own reader: its
+    values' when they are strings, as a time is)."""
+    if field.metadata["keys"]:
+        kind = typing.get_args(kind)[1]
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if field.metadata["pair"]:
+        return f"[lower, upper] of {_name((args or (kind,))[0])}"
+    if field.metadata["read"] is not None and found and all(isinstance(value, str) for value in found):
+        return "str"
+    if dataclasses.is_dataclass(kind):
         return "section"
-    if typing.get_origin(kind) is not None and args and args[-1] is float:
+    if origin is tuple:
+        if dataclasses.is_dataclass(args[0]):
+            return "sections by name" if is_named(args[0]) else "list"
+        return f"list of {_name(args[0])}"
+    if args and dataclasses.is_dataclass(args[-1]):
+        return "sections by name"
+    if args and origin is not None and args[-1] is float:
         return "name -> weight"
-    return getattr(kind, "__name__", str(kind)).replace("NoneType", "none") if not args else \
-        " or ".join(getattr(arg, "__name__", str(arg)).replace("NoneType", "absent") for arg in args)
+    return " or ".join(map(_name, args)) if args else _name(kind)
 
 
 def bounds_text(field: dataclasses.Field) -> str:
@@ -74,10 +81,13 @@ def rows(tree: Mapping[str, Any]) -> Iterator[tuple[str, str, str, str, str]]:
     """(key, type, bounds, value in params.yaml, doc) of every declared key."""
     for key, field, kind in declared(Params):
         found = values_at(tree, key)
-        section = type_text(field, kind) in ("section", "list") and not field.metadata["read"]
+        if not found and ("[]" in key or "<name>" in key):
+            continue  # a key an entry may give and none does (a fusion radar's own sigma_range_m)
+        kind_text = type_text(field, kind, found)
         shown = [str(v).lower() if isinstance(v, bool) else v for v in found]
-        value = "" if section else "; ".join(f"`{v}`" for v in shown) if len(shown) < 6 else f"{len(shown)} values"
-        yield key, type_text(field, kind), bounds_text(field), value, field.metadata["doc"]
+        value = "; ".join(f"`{v}`" for v in shown) if len(shown) < 6 else f"{len(shown)} values"
+        sections = kind_text in ("section", "sections by name", "list")
+        yield key, kind_text, bounds_text(field), "" if sections else value, field.metadata["doc"]
 
 
 def reference(tree: Mapping[str, Any]) -> str:
