@@ -123,6 +123,16 @@ def _readme(args: argparse.Namespace) -> int:
     return 0
 
 
+def _params_reference(args: argparse.Namespace) -> int:
+    from pipeline.reports.params_reference import write_reference
+    load_params(args.params)  # a reference is written of valid params only
+    if write_reference(Path(args.params), Path(args.out), check=args.check) and args.check:
+        log.error("%s: out of date with the params declarations; run `python -m pipeline params-reference`",
+                  args.out)
+        return 1
+    return 0
+
+
 FOLDERS = {  # option -> (default, what it is)
     "routes": ("data/routes", "routes folder"),
     "simulated": ("data/simulated", "simulated data folder"),
@@ -217,6 +227,10 @@ COMMANDS = {
     "readme": (_readme, "Regenerate the generated sections of the README and docs/: the results from reports/, "
                "the layout from the package's folders and docstrings.",
                "python -m pipeline readme --check", ["params", "readme", "docs", "reports", "package", "check"]),
+    "params-reference": (_params_reference, "Write docs/params.md from the params declarations "
+                         "(pipeline/params/): every key's type, bounds, value in params.yaml and doc.",
+                         "python -m pipeline params-reference --out docs/params.md --check",
+                         ["params", "reference"]),
 }
 
 
@@ -285,6 +299,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--out", required=True, help="output ASTERIX file")
     elif option == "readme":
         command.add_argument("--readme", default="README.md", help="README to update (default: %(default)s)")
+    elif option == "reference":
+        command.add_argument("--out", default="docs/params.md", help="the reference page (default: %(default)s)")
+        command.add_argument("--check", action="store_true",
+                             help="do not write; exit 1 naming the page if it is out of date")
     elif option == "check":
         command.add_argument("--check", action="store_true",
                              help="do not write; exit 1 if a generated section of the README or docs/ is out of date")

@@ -83,7 +83,7 @@ def test_the_readme_alpha_beta_example_is_one_module_and_one_entry_and_tracks(mo
 
 
 def with_section(params: Params, name: str, values: dict[str, Any]) -> Params:
-    """`params` with the README's params section `name` added: what declaring it in pipeline/params.py gives
+    """`params` with the README's params section `name` added: what declaring it in pipeline/params/ gives
     (its keys, with the YAML's values)."""
     section = make_dataclass(name, [(key, type(value)) for key, value in values.items()], frozen=True)
     declared = dataclass(frozen=True)(type("Declared", (Params,), {"__annotations__": {name: Any}}))

@@ -18,7 +18,6 @@ from tests.project import REPOSITORY
 README = REPOSITORY / "README.md"
 DECLARED = declared_runs(load_params(REPOSITORY / "params.yaml"))
 PAGES = sorted((REPOSITORY / "docs").glob("*.md"))
-PENDING = {REPOSITORY / "docs" / "params.md"}  # the params reference, written on its own branch (issue 28, item 2)
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 
 
@@ -50,8 +49,6 @@ def test_every_relative_link_and_picture_is_found(page: Path) -> None:
             continue  # https:, mailto:
         name, _, fragment = target.partition("#")
         linked = (page.parent / name).resolve() if name else page
-        if linked in PENDING and not linked.exists():
-            continue  # checked once it is merged
         assert linked.exists(), f"{page.name}: {target} is not there"
         if fragment:
             assert fragment in anchors(linked), f"{page.name}: {target} names no heading of {linked.name}"

@@ -86,7 +86,7 @@ def coverage_edge_m(altitude_m: float, radar: Radar) -> float:
 
 
 def check_scenes(params: Params) -> None:
-    """What params.py cannot check without the radar's geometry: every type of the mix must see its
+    """What pipeline.params cannot check without the radar's geometry: every type of the mix must see its
     situations, so the near end of `situation_range_m` must lie within EDGE_MARGIN of the coverage
     edge at the type's lowest altitude. Raises ParamError naming the key."""
     scenes = params.scenes
