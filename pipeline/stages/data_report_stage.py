@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pipeline import io
 from pipeline.params import Params
-from pipeline.reports import figures
+from pipeline.reports import data_figures
 from pipeline.simulation import routes, simulate
 from pipeline.simulation.data_summary import summarise_split
 
@@ -29,8 +29,8 @@ def run_data_report(params: Params, routes_dir: Path, simulated_dir: Path, repor
         loaded[split.name] = (route_table, plots, truth)
     first = params.routes.splits[0].name
     route_table, plots, truth = loaded[first]
-    routes_png = figures.route_examples(route_table, plots, params, params.example_routes)
-    radar_png = figures.radar_statistics(plots, truth)
+    routes_png = data_figures.route_examples(route_table, plots, params, params.example_routes)
+    radar_png = data_figures.radar_statistics(plots, truth)
     io.write_json(summary, reports_dir / "data.json")
     io.write_bytes(routes_png, reports_dir / "data_routes.png")
     io.write_bytes(radar_png, reports_dir / "data_radar.png")

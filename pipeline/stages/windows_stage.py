@@ -16,7 +16,7 @@ import pyarrow.compute  # noqa: F401  (pa.compute)
 from pipeline import io
 from pipeline.learning import materials, windows
 from pipeline.params import Params
-from pipeline.reports import figures
+from pipeline.reports import data_figures
 from pipeline.simulation import simulate
 
 log = logging.getLogger("pipeline")
@@ -45,7 +45,7 @@ def run_windows(params: Params, simulated_dir: Path, out_dir: Path, reports_dir:
         windows.target_plots(calibration_plots, params.radar, cfg.segment_gap_s, str(calibration_path)),
         calibration_plots, cfg, scalers["plots"])
     summary = window_summary(built, calibration, targets, held)
-    picture = figures.linearity_histograms({name: (m.linearity_before, m.linearity_after) for name, m in built.items()},
+    picture = data_figures.linearity_histograms({name: (m.linearity_before, m.linearity_after) for name, m in built.items()},
                                            cfg.balance_bins)
     for name, material in built.items():
         io.write_parquet(material.table, out_dir / f"{name}.parquet")
