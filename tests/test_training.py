@@ -100,6 +100,24 @@ def test_predictor_outputs_depend_only_on_earlier_inputs(changed):
     assert not torch.allclose(before[:, changed - 1], after[:, changed - 1])
 
 
+def test_the_onnx_export_of_a_network_with_large_outputs_passes_its_check_to_float32_rounding():
+    """The load-time check of the ONNX export is relative to the outputs (real-world case 33: a predictor
+    whose outputs reach 1e7 differed by 3.5, float32 rounding, and `track` stopped with a traceback);
+    the exported network gives PyTorch's outputs to that rounding."""
+    from pipeline.learning.inference import BatchNetwork
+    config = CONFIGS["predictor"]
+    torch.manual_seed(3)
+    network = build_network(config)
+    output = [module for module in network.modules() if isinstance(module, torch.nn.Linear)][-1]
+    with torch.no_grad():
+        output.weight.mul_(1e7)  # a diverged training's output layer: outputs of about 1e7
+    run = BatchNetwork(network, config.input_steps, config.input_features, "onnx")
+    windows = np.random.default_rng(0).normal(size=(50, config.input_steps, config.input_features))
+    expected = BatchNetwork(network, config.input_steps, config.input_features, "torch")(windows)
+    assert np.abs(expected).max() > 1e5
+    np.testing.assert_allclose(run(windows), expected, rtol=1e-5, atol=1e-4 * np.abs(expected).max())
+
+
 def test_unknown_network_kind_is_refused():
     """A kind that is not filter, predictor or autoencoder is a ValueError naming the kinds."""
     with pytest.raises(ValueError, match="tracker.*filter"):
@@ -125,6 +143,15 @@ def test_a_training_loss_that_goes_nan_stops_the_training_naming_the_network_and
     with pytest.raises(io.TrainingDiverged, match=r"training of the filter network stopped: the training loss "
                                                    r"became nan at epoch 1 of 5 \(learning rate 1e\+30\)"):
         train(CONFIGS["filter"], inputs, targets, dataclasses.replace(FEW_EPOCHS, learning_rate=1e30))
+
+
+def test_a_training_loss_that_diverges_but_stays_finite_stops_the_training():
+    """Learning rate 1e6 (real-world case 33): the weights stay finite, the loss grows far past the
+    untrained network's: stopped with TrainingDiverged (no model is written, nothing registered)."""
+    inputs, targets = smooth_windows(CONFIGS["filter"], 100)
+    with pytest.raises(io.TrainingDiverged, match=r"training of the filter network stopped: the training loss "
+                                                   r"diverged to .*, over 1000 times the untrained network's"):
+        train(CONFIGS["filter"], inputs, targets, dataclasses.replace(FEW_EPOCHS, learning_rate=1e6))
 
 
 class InfiniteValidationTargets(WindowDataModule):

@@ -8,7 +8,7 @@ leaves the module in eval mode:
 - `EpochMean`: the epoch's mean training loss, weighted by what each batch counts (windows, scored
   plots, pairs), logged once per epoch as `FitConfig.loss_name` and kept per epoch, with a progress
   line: logging the loss at every step would cost more than a step of these small networks;
-- `FiniteTraining`: TrainingDiverged as soon as a loss or a weight is not finite.
+- `FiniteTraining`: TrainingDiverged as soon as a loss or a weight is not finite, or the loss diverges.
 """
 
 from __future__ import annotations
@@ -144,6 +144,9 @@ class EpochMean(L.Callback):
                      self.config.loss_name, self.fitted.train_loss[-1], validation, now - self._began)
 
 
+DIVERGED_FACTOR = 1000.0  # an epoch's mean loss over this many times the untrained network's: diverged
+
+
 class FiniteTraining(L.Callback):
     """Stops a training, raising TrainingDiverged, as soon as its loss or its weights are not finite.
 
@@ -156,12 +159,17 @@ class FiniteTraining(L.Callback):
       (then after each validation and at each epoch's end: one read per epoch, no sync per step);
     - the validation loss `val_loss` after each validation;
     - every floating-point tensor of the module's state at each epoch's end (the Adam step after the
-      last loss of an epoch may overflow).
+      last loss of an epoch may overflow);
+    - a finite divergence: the epoch's mean loss above DIVERGED_FACTOR times the loss of the untrained
+      network (the first batch's, read once), checked where the finite check is. A learning rate of 1e6
+      keeps the predictor's loss finite while its hold-out error grows to 1e10 m (linear extrapolation:
+      65 m; real-world case 33); a training that learns stays far below its first loss.
     The exception goes through Lightning's interrupt handling (its loggers finalized "failed") to the
     stage, which writes nothing, ends its MLflow run FAILED and registers nothing; the command exits 2."""
 
     def __init__(self, config: FitConfig, mean: EpochMean) -> None:
         self.config, self.epoch_mean = config, mean
+        self.first_loss = math.nan  # the untrained network's: the first batch's loss
 
     def _stop(self, trainer: L.Trainer, what: str, batch: int | None = None) -> None:
         where = f"epoch {trainer.current_epoch + 1} of {trainer.max_epochs}"
@@ -174,9 +182,14 @@ class FiniteTraining(L.Callback):
         loss = float(self.epoch_mean.mean())
         if not math.isfinite(loss):
             self._stop(trainer, f"the training loss became {loss}", batch)
+        if self.first_loss > 0.0 and loss > DIVERGED_FACTOR * self.first_loss:
+            self._stop(trainer, f"the training loss diverged to {loss:.4g}, over {DIVERGED_FACTOR:g} times the "
+                                f"untrained network's {self.first_loss:.4g}", batch)
 
     def on_train_batch_end(self, trainer: L.Trainer, module: L.LightningModule, outputs: Any, batch: Any,
                            batch_index: int) -> None:
+        if math.isnan(self.first_loss):
+            self.first_loss = abs(float(outputs["loss"]))
         if not self.config.loss_on_device:
             self._check_train_loss(trainer, batch_index)
 
