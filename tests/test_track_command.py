@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -514,10 +515,11 @@ def test_twins_of_earlier_plots_are_dropped_and_counted_beside_what_the_reader_s
     assert not np.isin(np.arange(90000, 90005), table.plot_id).any() and 90009 in table.plot_id
 
 
-def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_path, filters_only):
+def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_path, filters_only, caplog):
     """Radar 1's plots given again under radar id 3, described at radar 1's site (one feed delivered under two
     ids): the copies are dropped and counted as duplicates, so the tracks are those of radar 1's plots alone,
     not the extra confirmed clutter of each plot associated with its own copy."""
+    caplog.set_level(logging.INFO, logger="pipeline")
     plots, radars, _ = two_radar_recording(params, np.random.default_rng(13))
     alone = plots.filter(pa.compute.equal(plots.column("radar_id"), 1))
     copies = with_column(with_column(alone, "radar_id", np.full(alone.num_rows, 3, np.int32)), "plot_id",
@@ -529,6 +531,7 @@ def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_pa
     assert pq.read_table(tmp_path / "twice" / "tracks.parquet").to_pandas().equals(once)
     summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
     assert summary["skipped"] == {"duplicate plot": alone.num_rows} and summary["radars"]["3"]["plots"] == 0
+    assert "confirmed tracks on the plots of 1 radar (no plot tracked of radar 3)" in caplog.text  # not "2 radars"
 
 
 def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_path, filters_only):

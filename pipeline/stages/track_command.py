@@ -125,9 +125,12 @@ def _write_tracks(recording: streamed_recording.RecordingParts, method: str, win
         io.write_json(report, summary_path(out))
     warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
     skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
-    log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on %d radars -> %s, summary %s",
-             len(recording), f"skipped {skipped}" if skipped else "none skipped", report["track_updates"],
-             report["confirmed_tracks"], len(recording.radars), out, summary_path(out))
+    seen = sum(1 for count in recording.plot_counts.values() if count)  # a radar whose every plot was skipped: none
+    unseen = [str(radar_id) for radar_id, count in sorted(recording.plot_counts.items()) if not count]
+    log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on the plots of %d radar%s%s -> %s, "
+             "summary %s", len(recording), f"skipped {skipped}" if skipped else "none skipped",
+             report["track_updates"], report["confirmed_tracks"], seen, "" if seen == 1 else "s",
+             f" (no plot tracked of radar {', '.join(unseen)})" if unseen else "", out, summary_path(out))
 
 
 EXPORT_PLOT_SCHEMA = io.schema(  # the columns of `simulate.PLOT_SCHEMA` that `export_asterix` writes
