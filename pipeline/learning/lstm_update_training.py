@@ -4,8 +4,8 @@ Trained by `filter_training.descent` (Lightning) on the material of the network-
 stage: the split's target plots less the windows stage's hold-out segments and less the
 validation segments (`validation_split`: `validation_fraction` of the others), restarted at gaps
 and every `segment_plots` plots. Then the MC-dropout covariance is calibrated (for the estimate,
-and for the prediction to the tracker's gate, `tracker.kalman_gate_probability`) on the validation
-segments' windows of `segment_plots` plots (as long as the training sequences, so the oldest ages'
+and for the prediction to the tracker's gate, `tracker.association.kalman_gate_probability`) on the
+validation segments' windows of `segment_plots` plots (as long as the training sequences, so the oldest ages'
 factors see old tracks), one started at every plot as the hold-out's are
 (`lstm_update.calibrate`), and the estimator is scored on
 the hold-out windows against the Nelder-Mead tuned CA filter it starts from and the tuned IMM
