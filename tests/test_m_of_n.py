@@ -134,8 +134,9 @@ def test_evaluate_scores_each_run_under_its_own_rule():
                                 {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     params = parse_params(tree)
     rules = {name: run_rule(params, run) for name, run in declared_runs(params).items()}
-    assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
-    assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)
+    management = tf.make_params().tracker.management
+    assert rules["imm_4000_m_of_n"] == MOfN.from_params(management)
+    assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(management)
 
 
 def test_the_tracker_table_labels_a_run_by_its_rule_and_keeps_the_others():
