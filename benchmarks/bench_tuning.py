@@ -34,8 +34,9 @@ def evaluation_seconds(params_path: str, repeat: int) -> dict[str, float]:
     """Best wall seconds of one cost evaluation of each filter kind at its start values."""
     params = load_params(params_path)
     plots = io.read_parquet(Path("data/simulated") / params.kalman.split / "plots.parquet", simulate.PLOT_SCHEMA)
+    gating = params.tracker.association
     material = tuning.target_sequences(plots, params.radar, params.kalman.restart_gap_s, params.kalman.burn_in_updates,
-                                       params.tracker.kalman_gate_probability, params.tracker.young_track_plots)
+                                       gating.kalman_gate_probability, gating.young_track_plots)
     best = {}
     for kind in KINDS:
         times = []

@@ -277,9 +277,10 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--window", type=_window_m, default=4000.0,
                              help="association window in metres (default: %(default)s)")
         command.add_argument("--management", choices=MANAGEMENT,
-                             help="track management rule (default: params' tracker.management): thesis deletes a "
-                                  "track not yet confirmed at its first silence (two missed scans), m_of_n confirms "
-                                  "at M hits of N scans and deletes a confirmed track after tracker.delete_after_s")
+                             help="track management rule (default: params' tracker.management.rule): thesis "
+                                  "deletes a track not yet confirmed at its first silence (two missed scans), m_of_n "
+                                  "confirms at M hits of N scans and deletes a confirmed track after "
+                                  "tracker.management.delete_after_s")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),

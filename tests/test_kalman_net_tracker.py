@@ -81,7 +81,8 @@ def test_prediction_without_a_plot_is_the_kalman_estimators_with_pinned_scales(p
     plots = tf.plots_of(flight, np.arange(3), params.radar)
     predictions = []
     for estimator in (KalmanNetEstimator(pinned_network(params)), KalmanEstimator(tf.untuned_filters(params)["cv"])):
-        live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
+        live = LiveTracks(plots, ThesisWeights.from_params(params.tracker.management),
+                          latest_plots=estimator.latest_plots)
         slot = live.start(0)
         estimator.start(live, slot)
         live.associate(slot, 1, estimator.update(live, slot, 1, None, 0)[0])
@@ -106,7 +107,7 @@ def test_a_track_is_filtered_as_in_training(params, base):
     flight[:, 1:4] += np.random.default_rng(8).normal(0.0, 60.0, (len(flight), 3))
     plots = tf.plots_of(flight, np.arange(len(flight)), params.radar)
     estimator = KalmanNetEstimator(model)
-    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker.management), latest_plots=estimator.latest_plots)
     slot = live.start(0)
     estimator.start(live, slot)
     stepped = [estimator.update(live, slot, row, None, 0) for row in range(1, len(flight))]

@@ -60,8 +60,8 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
     far = moved_east(flight, params, 5000.0)
     plots = tf.plots_of(np.concatenate([flight, far]), np.arange(2 * len(flight)), params.radar)
     estimator = KalmanEstimator(settings)
-    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
-    gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker.management), latest_plots=estimator.latest_plots)
+    gate = ChiSquareGate(params.tracker.association.kalman_gate_probability)
     slot = live.start(0)
     estimator.start(live, slot)
     slots = np.array([slot])
@@ -101,7 +101,7 @@ def one_track(params, settings, flight: np.ndarray) -> tuple[LiveTracks, KalmanE
     """The plots of `flight` tracked by `settings`' filter: one track started at the first, its slot."""
     estimator = KalmanEstimator(settings)
     live = LiveTracks(tf.plots_of(flight, np.arange(len(flight)), params.radar),
-                      ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
+                      ThesisWeights.from_params(params.tracker.management), latest_plots=estimator.latest_plots)
     slot = live.start(0)
     estimator.start(live, slot)
     return live, estimator, slot
@@ -131,8 +131,8 @@ def test_gate_scores_stacked_tracks_as_each_alone(params):
     features = np.concatenate([*flights, plot[None]])
     estimator = KalmanEstimator(settings)
     live = LiveTracks(tf.plots_of(features, np.arange(len(features)), params.radar),
-                      ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
-    gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+                      ThesisWeights.from_params(params.tracker.management), latest_plots=estimator.latest_plots)
+    gate = ChiSquareGate(params.tracker.association.kalman_gate_probability)
     first = 0
     for flight in flights:
         slot = live.start(first)
@@ -231,7 +231,7 @@ def test_single_filter_update_from_the_gates_inverse_is_its_own(params):
     results = []
     for handed_on in (True, False):
         live, estimator, slot = one_track(params, settings, flight)
-        gate = ChiSquareGate(params.tracker.kalman_gate_probability)
+        gate = ChiSquareGate(params.tracker.association.kalman_gate_probability)
         for row in range(1, len(flight)):
             scores = gate(live, np.array([slot]), row, estimator.predict(live, np.array([slot]), flight[row, 0]))
             assert scores.prediction.innovation_inverse.shape == (1, 3, 3)

@@ -115,8 +115,9 @@ def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot
     """Nearest neighbour's four plots ahead predicted in one call, and each track stepped with its MC-dropout
     masks drawn in the order of the updates: the updates of one plot at a time; with 2 copies a track's
     step runs on more rows than its own 3 (`batch_rows`; their spread is a line, so a floor of 1 km
-    makes the gate). Young tracks take what the window takes too (`tracker.young_window_fallback`)."""
-    model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, young_window_fallback=True)
+    makes the gate). Young tracks take what the window takes too (`tracker.lstm_update.young_window_fallback`)."""
+    fallback = replace(params.tracker.lstm_update, young_window_fallback=True)
+    model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, lstm_update=fallback)
     scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
         lambda: registry.compose("lstm_update", Models({"lstm_update": model}), tracker_params, 4000.0, 0), plots,
         monkeypatch)

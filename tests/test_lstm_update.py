@@ -145,8 +145,10 @@ def test_tracker_estimator_follows_the_sequence_run_and_gates_far_plots_out():
         model.load_state_dict(weights)
         with torch.no_grad():
             expected = model.eval()(batch).position[0].numpy()
-        estimator, gate = LSTMUpdateEstimator(model, 0), ChiSquareGate(params.tracker.kalman_gate_probability)
-        live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
+        estimator = LSTMUpdateEstimator(model, 0)
+        gate = ChiSquareGate(params.tracker.association.kalman_gate_probability)
+        live = LiveTracks(plots, ThesisWeights.from_params(params.tracker.management),
+                          latest_plots=estimator.latest_plots)
         slot = live.start(0)
         estimator.start(live, slot)
         rejected = 0
@@ -247,7 +249,7 @@ def test_bounded_gate_rejects_a_plot_beyond_the_window_however_wide_the_covarian
     offsets = np.array([[100e3, 0.0, 0.0], [100e3, 5000.0, 0.0], [100e3, 1000.0, 0.0]])
     features = np.column_stack([np.arange(3) * 6.0, site + offsets, np.linalg.norm(offsets, axis=1)])
     plots = tf.plots_of(features, np.arange(3), params.radar)
-    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker), latest_plots=0)
+    live = LiveTracks(plots, ThesisWeights.from_params(params.tracker.management), latest_plots=0)
     slots = np.array([live.start(0)])
     wide = Prediction(plots.position[:1], np.eye(3)[None] * 1e10, None)
     assert np.isfinite(ChiSquareGate(0.999)(live, slots, 1, wide).errors[0])

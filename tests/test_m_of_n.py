@@ -1,6 +1,6 @@
 """The M-of-N track management rule (`pipeline.tracker.m_of_n`) in the tracking loop, with the stub
 parts of `tests/test_tracker_loop.py` (no networks), and a long orbit tracked by the tuned IMM
-under both rules (`tracker.management`).
+under both rules (`tracker.management.rule`).
 
 M = 3, N = 5, one opportunity = one 6 s scan (the plots' radar's): a tentative track records a
 miss 9 s after its last hit, then every 6 s.
@@ -119,7 +119,7 @@ def confirmed_tracks(method: str, rule_name: str) -> int:
 def test_a_20_minute_orbit_at_3_dps_is_one_confirmed_track(method, rule):
     """No clutter, 200 plots: under either rule the orbit is one confirmed track with every tuned
     filter. Before the tuning cost counted gate misses (`kalman.cost: rmse_in_gate`) and mature
-    tracks had first claim on their plots (`tracker.mature_first`), the IMM split it into 5 (thesis)
+    tracks had first claim on their plots (`tracker.association.mature_first`), the IMM split it into 5 (thesis)
     or 6 (m_of_n): tuned on RMSE alone its CV model had no process noise (0.0067 m/s^2), its
     prediction gated out a plot 700 m off in the turn, and the track that plot started took over."""
     assert confirmed_tracks(method, rule) == 1
@@ -134,8 +134,9 @@ def test_evaluate_scores_each_run_under_its_own_rule():
                                 {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     params = parse_params(tree)
     rules = {name: run_rule(params, run) for name, run in declared_runs(params).items()}
-    assert rules["imm_4000_m_of_n"] == MOfN.from_params(tf.make_params().tracker)
-    assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(tf.make_params().tracker)
+    management = tf.make_params().tracker.management
+    assert rules["imm_4000_m_of_n"] == MOfN.from_params(management)
+    assert rules["imm_4000"] == rules["plots_reference"] == ThesisWeights.from_params(management)
 
 
 def test_the_tracker_table_labels_a_run_by_its_rule_and_keeps_the_others():

@@ -66,13 +66,14 @@ def test_default_params_load():
     ("compute.workers", 0, ["compute.workers", "0"]),
     ("compute.chunk_plots", 0, ["compute.chunk_plots", "0"]),
     # track management
-    ("tracker.management", "mofn", ["tracker.management", "'mofn'", "m_of_n"]),
-    ("tracker.confirm_m", 6, ["tracker.confirm_m = 6", "confirm_n = 5"]),
-    ("tracker.confirm_n", 0, ["tracker.confirm_n", "0"]),
-    ("tracker.confirm_n", 53, ["tracker.confirm_n = 53", "at most 52"]),
-    ("tracker.delete_after_s", 0.0, ["tracker.delete_after_s", "0.0"]),
+    ("tracker.management.rule", "mofn", ["tracker.management.rule", "'mofn'", "m_of_n"]),
+    ("tracker.management.confirm_m", 6, ["tracker.management.confirm_m = 6", "tracker.management.confirm_n = 5"]),
+    ("tracker.management.confirm_n", 0, ["tracker.management.confirm_n", "0"]),
+    ("tracker.management.confirm_n", 53, ["tracker.management.confirm_n = 53", "at most 52"]),
+    ("tracker.management.delete_after_s", 0.0, ["tracker.management.delete_after_s", "0.0"]),
     # learned gates (issue 27): a switch, and a share of the plots in the window
-    ("tracker.young_window_fallback", "yes", ["tracker.young_window_fallback = 'yes'", "true or false"]),
+    ("tracker.lstm_update.young_window_fallback", "yes",
+     ["tracker.lstm_update.young_window_fallback = 'yes'", "true or false"]),
     ("tracker.refusal_warning_share", 0.0, ["tracker.refusal_warning_share = 0.0", "(0.0, 1.0]"]),
     ("tracker.refusal_warning_share", 1.5, ["tracker.refusal_warning_share = 1.5", "(0.0, 1.0]"]),
     # GOSPA: a positive cutoff, and an order for which it is a metric

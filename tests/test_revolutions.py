@@ -1,5 +1,5 @@
 """Track life counted in revolutions of each plot's own radar (issue 27, case 25), under both track
-management rules, and at most one plot of a radar per revolution (`tracker.revisit_scans`).
+management rules, and at most one plot of a radar per revolution (`tracker.association.revisit_scans`).
 
 The recordings are built here: a radar's beam turns clockwise from north at T0, so a target is
 plotted when the beam meets its azimuth, a little more than a scan after its last plot when it
@@ -75,12 +75,13 @@ def slow_radar_plots(scans: int = 30) -> Plots:
                       (0.0, -230.0, 0.0), scans, seed=31)
 
 
-def tracks_by_plot(plots: Plots, method: str, rule: str, **changes) -> tuple[dict[int, int], set[int]]:
+def tracks_by_plot(plots: Plots, method: str, rule: str, changes: dict | None = None
+                   ) -> tuple[dict[int, int], set[int]]:
     """Each plot's track id (by plot id) and the confirmed tracks, of `method` (tuned filters, 4 km
-    window) under management rule `rule`, the tracker params changed by `changes`."""
-    params = tf.make_params()
-    tracker_params = dataclasses.replace(params.tracker, **changes)
-    tracker = registry.compose(method, Models({"kalman_tuned": TUNED}), tracker_params, 4000.0, params.tracker.seed, rule)
+    window) under management rule `rule`, the params changed by the dotted `changes`."""
+    params = tf.make_params(changes)
+    tracker = registry.compose(method, Models({"kalman_tuned": TUNED}), params.tracker, 4000.0, params.tracker.seed,
+                               rule)
     updates = track(plots, tracker)
     confirmed = set(updates["track_id"][confirmed_associations(updates, tracker.management)].tolist())
     return dict(zip(updates["plot_id"].tolist(), updates["track_id"].tolist())), confirmed
@@ -89,7 +90,7 @@ def tracks_by_plot(plots: Plots, method: str, rule: str, **changes) -> tuple[dic
 def test_each_rule_counts_its_silence_in_scans_of_the_latest_plots_radar():
     """The params' rules: the thesis lowers a track after 12 s, or 2 scans if longer; M-of-N records
     a miss 1.5 scans after a hit and deletes a confirmed track after 20 s, or 3.25 scans if longer."""
-    params = tf.make_params().tracker
+    params = tf.make_params().tracker.management
     thesis, m_of_n = ThesisWeights.from_params(params), MOfN.from_params(params)
     assert [thesis.silence(thesis.start, period) for period in (4.0, 6.0, 12.0)] == [12.0, 12.0, 24.0]
     assert [m_of_n.silence(m_of_n.start, period) for period in (4.0, 6.0, 12.0)] == [6.0, 9.0, 18.0]
@@ -100,7 +101,7 @@ def test_each_rule_counts_its_silence_in_scans_of_the_latest_plots_radar():
 @pytest.mark.parametrize("rule", RULES)
 @pytest.mark.parametrize("method", ["kalman_cv", "imm", "imm_gnn"])
 def test_a_target_seen_by_a_12_s_radar_is_one_confirmed_track(method, rule):
-    """Case 25: 30 plots, each 12.06-12.08 s after the last, a hair more than tracker.silence_s; counted in
+    """Case 25: 30 plots, each 12.06-12.08 s after the last, a hair more than tracker.management.silence_s; counted in
     seconds alone the thesis deleted every track before its second plot (30 tracks, none
     confirmed); counted in the radar's scans it is one confirmed track under either rule."""
     plots = slow_radar_plots()
@@ -111,9 +112,10 @@ def test_a_target_seen_by_a_12_s_radar_is_one_confirmed_track(method, rule):
 
 
 def test_counted_in_seconds_alone_the_12_s_radar_gives_a_track_per_plot():
-    """What the scans fix: with tracker.silence_scans 0 the thesis's 12 s lowers every new track of
+    """What the scans fix: with tracker.management.silence_scans 0 the thesis's 12 s lowers every new track of
     the 12 s radar before its second plot."""
-    track_of, confirmed = tracks_by_plot(slow_radar_plots(), "kalman_cv", registry.THESIS_RULE, silence_scans=0.0)
+    track_of, confirmed = tracks_by_plot(slow_radar_plots(), "kalman_cv", registry.THESIS_RULE,
+                                         {"tracker.management.silence_scans": 0.0})
     assert len(set(track_of.values())) == 30 and not confirmed
 
 
@@ -153,7 +155,7 @@ def test_a_two_radar_recording_read_in_chunks_gives_the_updates_of_one_read_whol
     plots, _, _ = two_radar_plots()
     fast = radar_turning(tf.make_params().radar, 1, 4.0).radar_id
     later = plots.take(np.flatnonzero((plots.radar_id != fast) | (plots.time > tf.T0 + 240.0)))
-    tracker_params = dataclasses.replace(tf.make_params().tracker, revisit_scans=0.5)
+    tracker_params = tf.make_params({"tracker.association.revisit_scans": 0.5}).tracker
 
     def compose():
         return registry.compose("kalman_cv", Models({"kalman_tuned": TUNED}), tracker_params, 4000.0, 1, registry.M_OF_N_RULE)

@@ -550,12 +550,12 @@ def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_pat
     assert summary["skipped"] == {"duplicate plot": plots.num_rows} and summary["plots_tracked"] == plots.num_rows
 
 
-@pytest.mark.parametrize("changes, warned", [({}, False), ({"tracker.management": "m_of_n",
-                                                                "tracker.silence_scans": 0.0}, False),
-                                              ({"tracker.silence_scans": 0.0}, True)])
+@pytest.mark.parametrize("changes, warned", [({}, False), ({"tracker.management.rule": "m_of_n",
+                                                                "tracker.management.silence_scans": 0.0}, False),
+                                              ({"tracker.management.silence_scans": 0.0}, True)])
 def test_a_radar_too_slow_for_the_silence_is_warned_of_by_its_id(params, tmp_path, filters_only, caplog, changes,
                                                                  warned):
-    """Radar 2 turning every 12 s: with the silence in seconds alone (tracker.silence_scans 0: 12 s,
+    """Radar 2 turning every 12 s: with the silence in seconds alone (tracker.management.silence_scans 0: 12 s,
     less than 1.5 of its scans) `track` warns, naming radar 2 and its period, and still tracks
     (exit 0); radar 1 (6 s) is not named. Under the default params (silence 2 scans, 24 s there) and
     under M-of-N (1.5 scans) no radar is named."""
@@ -888,14 +888,14 @@ def test_lstm_update_warns_when_its_gate_refuses_a_fast_target_and_the_window_fa
     LSTM update's young-track gate, its copies' start velocities those of slower targets, refuses every
     second plot: 20 tracks of one plot, none confirmed; the summary counts 19 of the 19 plots within
     window_m of a track refused, and `track` warns naming the method and the count. With
-    `tracker.young_window_fallback` the young track takes the second plot by the window, the learned
+    `tracker.lstm_update.young_window_fallback` the young track takes the second plot by the window, the learned
     gate the rest: one track, confirmed from its fourth plot, nothing refused, no warning."""
     features = tf.straight_features(params.radar, (0.0, 100e3, 11000.0), (600.0, 0.0, 0.0), 20)
     plots = tf.measurement_table(features, np.arange(len(features)), params.radar, 1)
     models = slow_trained_lstm_update(tmp_path / "models")
     with caplog.at_level("WARNING", logger="pipeline"):
         assert track_command(tmp_path, models, "lstm_update", plots, tf.radar_table(1, params.radar),
-                             {"tracker.young_window_fallback": fallback}) == 0
+                             {"tracker.lstm_update.young_window_fallback": fallback}) == 0
     tracks = pq.read_table(tmp_path / "tracks.parquet").to_pydict()
     summary = json.loads((tmp_path / "tracks.summary.json").read_text())
     warned = "track: method lstm_update: its learned gate refused 19 of the 19 plots (100.0 %) that lay within " \

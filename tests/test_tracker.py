@@ -63,7 +63,7 @@ def recording_plots(plots: pa.Table, radars: pa.Table, params, source: str = "te
 
 
 def status(weight: float, tracker) -> str:
-    return ThesisWeights.from_params(tracker).status(weight)
+    return ThesisWeights.from_params(tracker.management).status(weight)
 
 
 def expected_weights(count: int) -> list[float]:
@@ -86,7 +86,8 @@ def test_trained_predictor_extrapolates_a_straight_track_within_a_few_hundred_me
                                                          rng.uniform(2000.0, 11000.0)),
                                           (speed * np.sin(heading), speed * np.cos(heading), 0.0), states + 1)
             live = LiveTracks(tf.plots_of(flight, np.arange(states + 1), params.radar),
-                              ThesisWeights.from_params(params.tracker), latest_plots=estimator.latest_plots)
+                              ThesisWeights.from_params(params.tracker.management),
+                              latest_plots=estimator.latest_plots)
             slot = np.array([live.start(0)])
             live.tracks[slot[0]].memory = list(flight[:states])
             assert estimator.state_windows(live, slot, flight[states, 0])[1][0] == 5 - states
@@ -159,7 +160,7 @@ def test_clutter_alone_never_confirms_a_track(method, models, params):
     updates = run(clutter, np.arange(len(clutter)), method, models, params)
     assert len(updates["plot_id"]) == len(clutter)
     assert sorted(updates["plot_id"].tolist()) == list(range(len(clutter)))
-    assert updates["weight"].max() < params.tracker.weight_candidate - 1e-9
+    assert updates["weight"].max() < params.tracker.management.weight_candidate - 1e-9
     assert "confirmed" not in {status(w, params.tracker) for w in updates["weight"]}
 
 
@@ -199,7 +200,7 @@ def live_track(params, weight_steps: int, time: float = 0.0, later: tuple[float,
     times = np.array([time] * (weight_steps + 1) + list(later))
     features = np.column_stack([times, np.tile([2.9e6, 1.3e6, 5.5e6, 1.0e5], (len(times), 1))])
     live = LiveTracks(tf.plots_of(features, np.arange(len(times)), params.radar),
-                      ThesisWeights.from_params(params.tracker), latest_plots=0)
+                      ThesisWeights.from_params(params.tracker.management), latest_plots=0)
     slot = live.start(0)
     for row in range(1, weight_steps + 1):
         live.associate(slot, row, features[row, 1:4])
@@ -207,7 +208,7 @@ def live_track(params, weight_steps: int, time: float = 0.0, later: tuple[float,
 
 
 def test_documented_weights_and_silence(params):
-    tracker = params.tracker
+    tracker = params.tracker.management
     assert (tracker.weight_start, tracker.weight_candidate, tracker.weight_confirmed, tracker.weight_step,
             tracker.silence_s) == (0.4, 0.8, 1.0, 0.2, 12.0)
 

@@ -296,8 +296,8 @@ def test_a_learned_gate_refusing_every_plot_leaves_each_its_own_track_and_is_cou
 
 def test_young_tracks_floored_by_the_radius_take_what_the_window_takes():
     """The same target with the refusing gate floored by the window (`RadiusFloorGate`, lstm_update's
-    young gate under `tracker.young_window_fallback`): the second plot joins by the radius, error
-    (1500 / 2000)^2 on the chi-square's scale; the mature window gate takes the rest (error 0.75), one
+    young gate under `tracker.lstm_update.young_window_fallback`): the second plot joins by the radius,
+    error (1500 / 2000)^2 on the chi-square's scale; the mature window gate takes the rest (error 0.75), one
     track confirmed at its fourth plot; the clutter plot starts its own; nothing counted refused."""
     watch = RefusalWatch(WINDOW_M, young=True, mature=True)
     updates = track(plots(FAST_TIMES, FAST_OFFSETS), composition(young_gate=RadiusFloorGate(FixedGate(), WINDOW_M),

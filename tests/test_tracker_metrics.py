@@ -119,7 +119,7 @@ def test_the_hand_built_weights_are_the_trackers():
     """W is what LiveTracks holds after a start and three associations, floating point and all, and
     RULE is the default params' rule."""
     params = parse_params(default_params_tree())
-    assert ThesisWeights.from_params(params.tracker) == RULE
+    assert ThesisWeights.from_params(params.tracker.management) == RULE
     live = LiveTracks(tf.plots_of(np.tile([0.0, 1.0, 2.0, 3.0, 4.0], (4, 1)), np.arange(4), params.radar), RULE,
                       latest_plots=0)
     slot = live.start(0)

@@ -563,7 +563,7 @@ def test_windows_of_the_wrong_length_are_refused(chain, tmp_path, caplog, local_
     """Params asking for 8-plot filter windows, material of 10: exit 2 naming the file and the steps."""
     tree = tiny_params_tree()
     tree["windows"]["holdout_fraction"] = HOLDOUT_FRACTION
-    tree["windows"]["filter_length"] = tree["tracker"]["filter_plots"] = 8  # the tracker must agree
+    tree["windows"]["filter_length"] = tree["tracker"]["networks"]["filter_plots"] = 8  # the tracker must agree
     code, log = train_command(caplog, write_params(tree, tmp_path / "params.yaml"), "filter", chain / "windows",
                               tmp_path)
     assert code == 2

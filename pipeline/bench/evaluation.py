@@ -109,7 +109,8 @@ def reference_updates(scenario: Scenario, method: str, models: Models, params: P
     count = len(target)
     values = {"track_id": np.zeros(count, np.int64), "time_unix_s": target.time, "plot_id": target.plot_id,
               "radar_id": target.radar_id, "x_ecef_m": target.position[:, 0], "y_ecef_m": target.position[:, 1],
-              "z_ecef_m": target.position[:, 2], "weight": np.full(count, params.tracker.weight_confirmed),
+              "z_ecef_m": target.position[:, 2],
+              "weight": np.full(count, params.tracker.management.weight_confirmed),
               "association": np.array(["truth"] * count), "association_error": np.zeros(count),
               "position_covariance": target.covariance}
     return {name: values[name] for name in COLUMNS}
@@ -130,8 +131,8 @@ def tracker_runs(params: Params, models: Models) -> dict[Run, callable]:
 
 def run_rule(params: Params, run: Run) -> TrackManagement:
     """The track management rule `run` is tracked and scored under: the one it names, else the tracker's
-    (`tracker.management`, every reference's)."""
-    return registry.management(run.management or params.tracker.management, params.tracker)
+    (`tracker.management.rule`, every reference's)."""
+    return registry.management(run.management or params.tracker.management.rule, params.tracker)
 
 
 @dataclass

@@ -46,7 +46,7 @@ class Run:
 
     @property
     def management(self) -> str | None:
-        """The rule the run names (None: the tracker's, `tracker.management`; every reference's)."""
+        """The rule the run names (None: the tracker's, `tracker.management.rule`; every reference's)."""
         return self.declared.management
 
     @property

@@ -14,9 +14,9 @@ The cost is computed from the filtered positions after `burn_in_updates` updates
   tracker's chi-square gate than the gate's probability P_G allows:
   rmse * (1 + max(0, miss - (1 - P_G)) / (1 - P_G)), miss the share of gated plots whose
   innovation distance (`batch_filters.FilteredSequences`) exceeds the gate. The gated plots are
-  those the tracker gates with the filter's prediction: from the `tracker.young_track_plots`-th
-  plot after each (re)start on, burn-in or not (a new track's velocity spread decides whether
-  its third plot is kept). RMSE alone tunes
+  those the tracker gates with the filter's prediction: from the
+  `tracker.association.young_track_plots`-th plot after each (re)start on, burn-in or not (a new
+  track's velocity spread decides whether its third plot is kept). RMSE alone tunes
   with the true association, so it never sees the gate: on routes that are mostly straight it
   drives the IMM's CV model to no process noise, whose tight prediction then gates out the
   target's plots in a long turn and splits the track. Twice the allowed misses doubles the cost.

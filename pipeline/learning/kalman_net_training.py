@@ -46,10 +46,10 @@ def baseline_start(kind: str, params: Params) -> FilterSpec:
 def training_material(params: Params, plots: pa.Table, holdout: pa.Table) -> SequenceBatch:
     """Training segments (B, segment_plots) of the split's target plots, hold-out plots left out
     (they are the windows stage's train split's: only that split has them)."""
-    k = params.kalman_net
+    k, gating = params.kalman_net, params.tracker.association
     return training_segments(plots, holdout if k.split == params.routes.split("train").name else None,
-                             params.radar, k.restart_gap_s, k.burn_in_updates, params.tracker.kalman_gate_probability,
-                             params.tracker.young_track_plots, k.segment_plots, k.truncation_steps, "kalman_net")
+                             params.radar, k.restart_gap_s, k.burn_in_updates, gating.kalman_gate_probability,
+                             gating.young_track_plots, k.segment_plots, k.truncation_steps, "kalman_net")
 
 
 class KalmanNetRecipe(SectionRecipe):

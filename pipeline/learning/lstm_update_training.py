@@ -4,8 +4,8 @@ Trained by `filter_training.descent` (Lightning) on the material of the network-
 stage: the split's target plots less the windows stage's hold-out segments and less the
 validation segments (`validation_split`: `validation_fraction` of the others), restarted at gaps
 and every `segment_plots` plots. Then the MC-dropout covariance is calibrated (for the estimate,
-and for the prediction to the tracker's gate, `tracker.kalman_gate_probability`) on the validation
-segments' windows of `segment_plots` plots (as long as the training sequences, so the oldest ages'
+and for the prediction to the tracker's gate, `tracker.association.kalman_gate_probability`) on the
+validation segments' windows of `segment_plots` plots (as long as the training sequences, so the oldest ages'
 factors see old tracks), one started at every plot as the hold-out's are
 (`lstm_update.calibrate`), and the estimator is scored on
 the hold-out windows against the Nelder-Mead tuned CA filter it starts from and the tuned IMM
@@ -61,8 +61,9 @@ class LSTMUpdateRecipe(SectionRecipe):
         validation = validation_split.validation_plots(plots, held, params.radar, params.windows.segment_gap_s,
                                                        u.validation_fraction, u.seed, str(plots_path))
         batch = training_segments(plots, validation_split.without(held, validation), params.radar, u.restart_gap_s,
-                                  u.burn_in_updates, params.tracker.kalman_gate_probability,
-                                  params.tracker.young_track_plots, u.segment_plots, u.truncation_steps, "lstm_update")
+                                  u.burn_in_updates, params.tracker.association.kalman_gate_probability,
+                                  params.tracker.association.young_track_plots, u.segment_plots, u.truncation_steps,
+                                  "lstm_update")
         validation_windows = filter_holdout.window_batch(validation, params.radar, u.segment_plots)
         if not len(validation_windows.times):
             raise io.InputError(f"lstm_update.validation_fraction = {u.validation_fraction}: no validation segment "
@@ -88,7 +89,7 @@ class LSTMUpdateRecipe(SectionRecipe):
         losses, seconds = trained.fitted.train_loss, trained.fitted.seconds
         torch.manual_seed(u.seed)  # the calibration's dropout masks
         factors, plot_factors, gap_factors = lstm_update.calibrate(model, material.validation_windows,
-                                                                   params.tracker.kalman_gate_probability)
+                                                                   params.tracker.association.kalman_gate_probability)
         runs: dict[str, filter_holdout.FilterRun] = {"LSTM update": model}
         for kind, label in BASELINES.items():
             runs[label] = lambda rows, spec=FilterSpec.from_settings(material.tuned[kind]): rows.filtered(spec)

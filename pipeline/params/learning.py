@@ -100,10 +100,11 @@ class Kalman(Section):
 
     split: str = split_knob()
     cost: str = knob("rmse (filtered position error), nees (|ln(ANEES / 3)|) or rmse_in_gate (rmse, raised when more "
-                     "target plots miss the gate than tracker.kalman_gate_probability allows)", choices=TUNING_COSTS)
+                     "target plots miss the gate than tracker.association.kalman_gate_probability allows)",
+                     choices=TUNING_COSTS)
     burn_in_updates: int = knob("plots of each (re)start left out of the cost, its first plot included", 0)
     restart_gap_s: float = positive("a longer gap restarts the filter (the tracker deletes a track silent 2 x "
-                                    "silence_s)")
+                                    "tracker.management.silence_s)")
     max_iterations: int = knob("Nelder-Mead iterations; tuning that has not converged by then fails", 1)
     velocity_std_mps: float = positive("a new track's velocity spread (start value; tuned)")
     acceleration_std_mps2: float = positive("a new track's acceleration spread (CA and IMM; not tuned)")

@@ -17,9 +17,12 @@ SITE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a site's name labels report
 
 
 @dataclass(frozen=True)
-class TrackerParams(Section):
-    """`tracker`: the neural tracker (thesis 4.4-4.6; pipeline/tracker/) and every tracker's management."""
+class Management(Section):
+    """`tracker.management`: the track management rules of every tracker (pipeline/tracker/management.py,
+    m_of_n.py): the rule of every run that names none, the thesis's weights and the M-of-N rule's knobs."""
 
+    rule: str = knob("track management of every run that names none: thesis (the weights) or m_of_n (Blackman "
+                     "& Popoli 1999 M/N confirmation, time-out deletion)")
     weight_start: float = positive("a new track's weight; weights rise: start < candidate < confirmed")
     weight_candidate: float = positive("a candidate track's weight")
     weight_confirmed: float = positive("a confirmed (mature) track's weight")
@@ -27,41 +30,45 @@ class TrackerParams(Section):
     silence_s: float = positive("no association and no weight change for this long: weight - step ...")
     silence_scans: float = knob("... or for this many scans of the radar of the track's latest plot, if longer "
                                 "(ours, issue 27; 0: seconds only)", 0.0)
-    prefilter_m: float = positive("a plot farther than this from every track starts a new track")
-    young_track_plots: int = knob("below this many plots a track is gated by the constant radius (VIA, MIA)", 1)
-    young_track_plots_ae: int = knob("... and for the autoencoder method", "windows.autoencoder_length")
-    filter_plots: int = knob("with this many plots the filter network updates the state: windows.filter_length", 1)
-    mia_samples: int = knob("MIA's samples", 2)
-    mia_ball_radius_m: float = positive("MIA's samples are normal (sigma = radius / 3), clipped to this ball")
-    mia_k_no_padding: float = positive("MIA's K when no state is padded ...")
-    mia_k_padded_base: float = positive("... else K = base - number of padded states")
-    seed: int = knob("MIA sampling", 0)
-    inference: str = knob("onnx (ONNX Runtime, ~5x faster per call) or torch; same outputs", choices=("onnx", "torch"))
-    kalman_gate_probability: float = knob("the classical trackers' chi-square gate (3 degrees of freedom)", 0.0, 1.0,
-                                          open_low=True, open_high=True)
-    management: str = knob("track management of every run that names none: thesis (the weights) or m_of_n (Blackman "
-                           "& Popoli 1999 M/N confirmation, time-out deletion)")
     confirm_m: int = knob("m_of_n: confirmed at the association making this many hits, at most confirm_n ...", 1)
     confirm_n: int = knob("... within the last this many opportunities (scans of the latest plot's radar)", 1,
                           MAX_CONFIRM_N)
     delete_after_s: float = positive("m_of_n: a confirmed track silent longer than this ...")
     delete_after_scans: float = knob("... and than this many scans of its latest plot's radar is deleted", 0.0)
-    mature_first: bool = knob("a plot inside a mature track's gate is not offered to young tracks (ours)")
-    revisit_scans: float = knob("a track that took a plot of a radar is offered no other of that radar within this "
-                                "many of its scans (issue 27; 0: off)", 0.0, 1.0, open_high=True)
-    lstm_update_gate_m: float = positive("the lstm_update method's chi-square gate takes no plot further than this "
-                                         "from the prediction (issue 18)")
-    young_window_fallback: bool = knob("lstm_update's young tracks also take a plot within window_m (issue 27)")
-    refusal_warning_share: float = knob("`track` warns when a learned gate refused this share of the plots within "
-                                        "window_m of a track it scored", 0.0, 1.0, open_low=True)
 
-    def check(self, path: str, context: Mapping[str, Any]) -> TrackerParams:
-        windows = context["windows"]
+    def check(self, path: str, context: Mapping[str, Any]) -> Management:
         if self.confirm_m > self.confirm_n:
-            raise ParamError(f"{path}.confirm_m = {self.confirm_m}: must not exceed confirm_n = {self.confirm_n}")
+            raise ParamError(f"{path}.confirm_m = {self.confirm_m}: must not exceed {path}.confirm_n = "
+                             f"{self.confirm_n}")
         if not self.weight_start < self.weight_candidate < self.weight_confirmed:
             raise ParamError(f"{path}: weights must rise: weight_start {self.weight_start} < weight_candidate "
                              f"{self.weight_candidate} < weight_confirmed {self.weight_confirmed}")
+        return self
+
+
+@dataclass(frozen=True)
+class Candidates(Section):
+    """`tracker.association`: which tracks a plot is offered to and how young tracks are gated, shared by every
+    tracking method (pipeline/tracker/run.py, gate.py, registry.py)."""
+
+    prefilter_m: float = positive("a plot farther than this from every track starts a new track")
+    mature_first: bool = knob("a plot inside a mature track's gate is not offered to young tracks (ours)")
+    revisit_scans: float = knob("a track that took a plot of a radar is offered no other of that radar within this "
+                                "many of its scans (issue 27; 0: off)", 0.0, 1.0, open_high=True)
+    young_track_plots: int = knob("below this many plots a track is gated by the constant radius (VIA, MIA)", 1)
+    young_track_plots_ae: int = knob("... and for the autoencoder method", "windows.autoencoder_length")
+    kalman_gate_probability: float = knob("the classical trackers' chi-square gate (3 degrees of freedom)", 0.0, 1.0,
+                                          open_low=True, open_high=True)
+
+
+@dataclass(frozen=True)
+class Networks(Section):
+    """`tracker.networks`: the thesis networks' tracker (pipeline/tracker/network_estimator.py)."""
+
+    filter_plots: int = knob("with this many plots the filter network updates the state: windows.filter_length", 1)
+
+    def check(self, path: str, context: Mapping[str, Any]) -> Networks:
+        windows = context["windows"]
         if self.filter_plots != windows.filter_length:
             raise ParamError(f"{path}.filter_plots = {self.filter_plots}: the filter network reads "
                              f"windows.filter_length = {windows.filter_length} plots")
@@ -69,14 +76,50 @@ class TrackerParams(Section):
 
 
 @dataclass(frozen=True)
+class MIA(Section):
+    """`tracker.mia`: the MIA method's sampled gate (thesis 4.6; pipeline/tracker/network_gates.py)."""
+
+    samples: int = knob("MIA's samples", 2)
+    ball_radius_m: float = positive("MIA's samples are normal (sigma = radius / 3), clipped to this ball")
+    k_no_padding: float = positive("MIA's K when no state is padded ...")
+    k_padded_base: float = positive("... else K = base - number of padded states")
+
+
+@dataclass(frozen=True)
+class LSTMUpdateGate(Section):
+    """`tracker.lstm_update`: how the lstm_update method's tracker gates (pipeline/tracker/registry.py; the
+    network's own knobs are params' `lstm_update`)."""
+
+    gate_m: float = positive("the lstm_update method's chi-square gate takes no plot further than this from the "
+                             "prediction (issue 18)")
+    young_window_fallback: bool = knob("lstm_update's young tracks also take a plot within window_m (issue 27)")
+
+
+@dataclass(frozen=True)
+class TrackerParams(Section):
+    """`tracker`: the neural tracker (thesis 4.4-4.6; pipeline/tracker/) and every tracker's management, its knobs
+    grouped by the component that reads them (as Stone Soup keeps knobs on their components)."""
+
+    seed: int = knob("MIA sampling", 0)
+    inference: str = knob("onnx (ONNX Runtime, ~5x faster per call) or torch; same outputs", choices=("onnx", "torch"))
+    refusal_warning_share: float = knob("`track` warns when a learned gate refused this share of the plots within "
+                                        "window_m of a track it scored", 0.0, 1.0, open_low=True)
+    management: Management = knob("the track management rules")
+    association: Candidates = knob("candidates and gating shared by every method")
+    networks: Networks = knob("the thesis networks' tracker")
+    mia: MIA = knob("the MIA method's gate")
+    lstm_update: LSTMUpdateGate = knob("the lstm_update method's gate")
+
+
+@dataclass(frozen=True)
 class EvaluationRun(Section):
     """`evaluate.runs[]`: one evaluation run: a method, its window (m) and, if the run names one, its track
-    management rule (None: the tracker's, `tracker.management`); or a reference of `evaluate.references`
+    management rule (None: the tracker's, `tracker.management.rule`); or a reference of `evaluate.references`
     (`reference`: the raw plots or the oracle, no window of its own: 0)."""
 
     method: str = knob("a tracking method of the tracker's registry")
     window_m: float = positive("its association window (the young tracks' radius)")
-    management: str | None = knob("its track management rule (absent: tracker.management)", default=None)
+    management: str | None = knob("its track management rule (absent: tracker.management.rule)", default=None)
     reference: bool = given(False)
 
     @property

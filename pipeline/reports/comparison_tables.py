@@ -134,7 +134,7 @@ CONTINUITY_INTRO = (
     "`pipeline/bench/tracker_metrics.py`) and the share of its plots in confirmed tracks (ROCA), over all test "
     "routes and by route strategy; each cell is tracks per aircraft · ROCA. Runs named `_m_of_n` are tracked "
     "and scored under M-of-N confirmation and time-out deletion, the others under the thesis's weights "
-    "(`tracker.management`). The oracle's figure is the floor the routes allow: an aircraft that leaves "
+    "(`tracker.management.rule`). The oracle's figure is the floor the routes allow: an aircraft that leaves "
     "coverage and comes back is two tracks even with the true association.")
 
 

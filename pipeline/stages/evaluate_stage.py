@@ -7,6 +7,7 @@ and logs one MLflow run.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -21,6 +22,18 @@ from pipeline.params import Params
 from pipeline.reports import figures
 
 log = logging.getLogger("pipeline")
+
+
+def dotted_knobs(section: object, path: str) -> dict[str, object]:
+    """A section's knobs by their dotted params.yaml key (`tracker.management.rule`), its nested sections'
+    too: MLflow params are flat."""
+    knobs: dict[str, object] = {}
+    for key, value in vars(section).items():
+        if dataclasses.is_dataclass(value):
+            knobs.update(dotted_knobs(value, f"{path}.{key}"))
+        else:
+            knobs[f"{path}.{key}"] = value
+    return knobs
 
 
 def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, reports_dir: Path) -> None:
@@ -51,7 +64,7 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
         if any(used):
             client.log_inputs(run.info.run_id, models=[LoggedModelInput(model_id) for model_id in used if model_id])
         mlflow.log_params({"runs": [entry.name for entry in params.evaluate.runs], "split": split,
-                           **{f"tracker.{k}": v for k, v in vars(params.tracker).items()}})
+                           **dotted_knobs(params.tracker, "tracker")})
 
         results, per_scan, examples, by_strategy = evaluate_all(evaluation, params.workers)
         declared = declared_runs(params)

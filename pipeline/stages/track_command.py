@@ -82,7 +82,7 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
               management: str | None = None) -> None:
     """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
     summary beside it (`summary_path`), under the track management rule `management` (one of
-    `registry.MANAGEMENT`; None: params' `tracker.management`). The recording is placed, tracked and written
+    `registry.MANAGEMENT`; None: params' `tracker.management.rule`). The recording is placed, tracked and written
     `compute.chunk_plots` plots at a time: a Parquet recording is read from its file as it goes
     (`streamed_recording`), one out of time order sorted first into a temporary folder beside `out`
     (in its nearest existing folder), removed at the end; an ASTERIX recording is decoded whole
@@ -92,7 +92,8 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
               "--asterix": asterix_paths}
     io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
     if management is not None:
-        params = dataclasses.replace(params, tracker=dataclasses.replace(params.tracker, management=management))
+        rules = dataclasses.replace(params.tracker.management, rule=management)
+        params = dataclasses.replace(params, tracker=dataclasses.replace(params.tracker, management=rules))
     if asterix_paths:
         if first_date is None:
             raise io.InputError("ASTERIX input carries only the time of day: give --date (UTC date of the first record)")

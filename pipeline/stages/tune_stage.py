@@ -107,8 +107,9 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
 
     plots_path = simulated_dir / params.kalman.split / "plots.parquet"
     plots = io.read_parquet(plots_path, simulate.PLOT_SCHEMA)
+    gating = params.tracker.association
     material = tuning.target_sequences(plots, params.radar, params.kalman.restart_gap_s, params.kalman.burn_in_updates,
-                                       params.tracker.kalman_gate_probability, params.tracker.young_track_plots)
+                                       gating.kalman_gate_probability, gating.young_track_plots)
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment, "tune_kalman")
     log.info("tune_kalman: %d target plots of %s, %d scored, cost %s, %d worker processes", int(material.valid.sum()),

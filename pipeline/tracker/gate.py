@@ -25,9 +25,9 @@ plots it reads in `latest_plots` (the autoencoder's window; 0 for the gates here
   the validation gate of Bar-Shalom, Li and Kirubarajan, "Estimation with Applications to
   Tracking and Navigation", 2001, section 5.4.2); the error is d^2 / quantile.
 - `AcceptAll` (the oracle, whose assigner uses the truth): every track, error 0.
-- `RadiusFloorGate` (`lstm_update`'s young tracks under `tracker.young_window_fallback`, issue 27):
-  a learned gate that also accepts what `RadiusGate` accepts, so it is never narrower than the
-  young-track radius of every other method.
+- `RadiusFloorGate` (`lstm_update`'s young tracks under `tracker.lstm_update.young_window_fallback`,
+  issue 27): a learned gate that also accepts what `RadiusGate` accepts, so it is never narrower
+  than the young-track radius of every other method.
 
 The gates that run networks (`mia`, `ae`) are in `pipeline.tracker.network_gates`.
 """

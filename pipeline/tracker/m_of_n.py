@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.params import TrackerParams
+from pipeline.params import Management
 
 CONFIRMED = 1.0
 
@@ -48,7 +48,7 @@ class MOfN:
     delete_after_scans: float = 0.0
 
     @classmethod
-    def from_params(cls, params: TrackerParams) -> "MOfN":
+    def from_params(cls, params: Management) -> "MOfN":
         return cls(params.confirm_m, params.confirm_n, params.delete_after_s, params.delete_after_scans)
 
     @property

@@ -18,7 +18,7 @@ issue 36).
 
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
 alternative (M-of-N confirmation, time-out deletion). `pipeline.tracker.registry` names both
-(`tracker.management`, or a run's `management`).
+(`tracker.management.rule`, or a run's `management`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Protocol
 
 import numpy as np
 
-from pipeline.params import TrackerParams
+from pipeline.params import Management
 
 EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this tolerance
 
@@ -75,7 +75,7 @@ class ThesisWeights:
     silence_scans: float = 0.0
 
     @classmethod
-    def from_params(cls, params: TrackerParams) -> "ThesisWeights":
+    def from_params(cls, params: Management) -> "ThesisWeights":
         return cls(params.weight_start, params.weight_candidate, params.weight_confirmed, params.weight_step,
                    params.silence_s, params.silence_scans)
 

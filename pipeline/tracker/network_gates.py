@@ -20,7 +20,7 @@ import numpy as np
 from pipeline.geometry import geodesy
 from pipeline.learning.inference import BatchNetwork
 from pipeline.learning.model_store import LoadedModel
-from pipeline.params import TrackerParams
+from pipeline.params import MIA
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.draws import PairDraws
 from pipeline.tracker.gate import Scores, within
@@ -35,7 +35,7 @@ class MonteCarloGate:
     pairwise = True
     latest_plots = 1
 
-    def __init__(self, estimator: NetworkEstimator, params: TrackerParams, seed: int | list[int]) -> None:
+    def __init__(self, estimator: NetworkEstimator, params: MIA, seed: int | list[int]) -> None:
         self.estimator, self.params, self.draws = estimator, params, PairDraws(seed)
 
     def _samples(self, position: np.ndarray, radar_ecef: np.ndarray, pairs: tuple[np.ndarray, np.ndarray],
@@ -45,15 +45,15 @@ class MonteCarloGate:
         (`pairs`: the track ids and plot ids (K,) of the (track, plot) pairs). Drawn in the radial
         frame at each state (cross-range, down-range, up; `geodesy.radial_rotations`, one per state),
         so the same flight relative to the radar draws the same samples at any site."""
-        offsets = self.draws.normals(*pairs, count) * (self.params.mia_ball_radius_m / 3.0)
+        offsets = self.draws.normals(*pairs, count) * (self.params.ball_radius_m / 3.0)
         norms = np.linalg.norm(offsets, axis=1, keepdims=True)
-        local = offsets * np.minimum(1.0, self.params.mia_ball_radius_m / np.maximum(norms, 1e-12))
+        local = offsets * np.minimum(1.0, self.params.ball_radius_m / np.maximum(norms, 1e-12))
         rotations = np.repeat(geodesy.radial_rotations(position, radar_ecef), count, axis=0)
         return np.einsum("nj,nji->ni", local, rotations)
 
     def __call__(self, tracks: LiveTracks, slots: np.ndarray, row: int | np.ndarray, prediction: Prediction | None
                  ) -> Scores:
-        count = self.params.mia_samples
+        count = self.params.samples
         windows, padded, radar = self.estimator.state_windows(tracks, slots, tracks.plots.time[row])
         pairs = (np.array([tracks.tracks[slot].track_id for slot in slots], dtype=np.int64),
                  np.broadcast_to(tracks.plots.plot_id[row], slots.shape))
@@ -63,7 +63,7 @@ class MonteCarloGate:
             len(slots), count, -1)
         mean = predictions.mean(axis=1)
         sigma = np.sqrt(((predictions[:, :, 1:4] - mean[:, None, 1:4]) ** 2).sum(axis=2).mean(axis=1))
-        k = np.where(padded > 0, self.params.mia_k_padded_base - padded, self.params.mia_k_no_padding)
+        k = np.where(padded > 0, self.params.k_padded_base - padded, self.params.k_no_padding)
         radius = np.maximum(k * sigma, 1e-9)
         distance = np.linalg.norm(mean[:, 1:4] - tracks.plots.position[row], axis=1)
         return Scores(within(distance, radius), Prediction(mean[:, 1:4], None, mean))

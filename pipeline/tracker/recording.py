@@ -72,8 +72,8 @@ def warn_short_silences(management: TrackManagement, rule: str, radars: Mapping[
             short.append(radar_id)
             log.warning("track: radar %d turns every %.6g s, but track management %r lowers a new track after "
                         "%.6g s of silence, less than %.6g of its scans: its tracks may never be confirmed (raise "
-                        "tracker.silence_s or tracker.silence_scans)", radar_id, radar.scan_period_s, rule, silence,
-                        SCAN_SLACK)
+                        "tracker.management.silence_s or tracker.management.silence_scans)", radar_id,
+                        radar.scan_period_s, rule, silence, SCAN_SLACK)
     return short
 
 
@@ -99,8 +99,8 @@ def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapp
     learned gate refused (`pipeline.tracker.refusals`; none for a method without one) are added to
     `refusals` once the scenario is tracked."""
     models = load_models(models_dir, params, [method])
-    management = registry.management(params.tracker.management, params.tracker)
-    warn_short_silences(management, params.tracker.management, radars)
+    management = registry.management(params.tracker.management.rule, params.tracker)
+    warn_short_silences(management, params.tracker.management.rule, radars)
     sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in radars.items()}
     for scenario_id, chunks in scenarios:
         seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]

@@ -80,6 +80,6 @@ def warn_refusals(method: str, window_m: float, counts: RefusalCounts, share: fl
     if counts.refused and counts.share >= share:
         log.warning("track: method %s: its learned gate refused %d of the %d plots (%.1f %%) that lay within "
                     "window_m = %g m of a track it scored, and each started a track of its own: plots unlike "
-                    "its training (a target faster than any it saw?); tracker.young_window_fallback widens a "
-                    "learned young-track gate (lstm_update's) to the window", method, counts.refused, counts.in_window,
-                    100.0 * counts.share, window_m)
+                    "its training (a target faster than any it saw?); tracker.lstm_update.young_window_fallback "
+                    "widens a learned young-track gate (lstm_update's) to the window", method, counts.refused,
+                    counts.in_window, 100.0 * counts.share, window_m)

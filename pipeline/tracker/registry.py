@@ -48,7 +48,7 @@ NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
 THESIS_RULE, M_OF_N_RULE = "thesis", "m_of_n"
-MANAGEMENT = (THESIS_RULE, M_OF_N_RULE)  # track management rules (`tracker.management`, a run's `management`)
+MANAGEMENT = (THESIS_RULE, M_OF_N_RULE)  # track management rules (`tracker.management.rule`, a run's `management`)
 
 
 class UnknownMethod(ValueError):
@@ -75,7 +75,8 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
                  young_gate: "Gate | None" = None, learned: tuple[bool, bool] = (False, False)) -> "Composition":
     """A composition with the defaults every method shares: the young-track radius gate, the
     pre-filter distance of params, nearest neighbour per plot, the tracker's management rule, its
-    association priority (`tracker.mature_first`) and its revisit limit (`tracker.revisit_scans`).
+    association priority (`tracker.association.mature_first`) and its revisit limit
+    (`tracker.association.revisit_scans`).
     `learned`: whether its (young, mature) gate is learned, sized by a network's output; such a
     composition counts the plots its learned gates refuse that the window would take
     (`pipeline.tracker.refusals`)."""
@@ -83,11 +84,12 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
     from pipeline.tracker.gate import RadiusGate
     from pipeline.tracker.refusals import RefusalWatch
     from pipeline.tracker.run import Composition
+    gating = params.association
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
-                       params.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
-                       management(params.management, params), params.mature_first,
+                       gating.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
+                       management(params.management.rule, params), gating.mature_first,
                        refusals=RefusalWatch(window_m, *learned) if any(learned) else None,
-                       revisit_scans=params.revisit_scans)
+                       revisit_scans=gating.revisit_scans)
 
 
 def _network_estimator(models: "Models") -> "NetworkEstimator":
@@ -102,22 +104,22 @@ def _radius(models: "Models", params: "TrackerParams", window_m: float, seed: Se
 
 def _via(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     from pipeline.tracker.gate import WindowGate
-    return _composition("via", _network_estimator(models), WindowGate(window_m), params.young_track_plots, window_m,
-                        params)
+    return _composition("via", _network_estimator(models), WindowGate(window_m), params.association.young_track_plots,
+                        window_m, params)
 
 
 def _mia(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     from pipeline.tracker.network_gates import MonteCarloGate
     estimator = _network_estimator(models)
-    return _composition("mia", estimator, MonteCarloGate(estimator, params, seed),
-                        params.young_track_plots, window_m, params, learned=(False, True))
+    return _composition("mia", estimator, MonteCarloGate(estimator, params.mia, seed),
+                        params.association.young_track_plots, window_m, params, learned=(False, True))
 
 
 def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
     from pipeline.tracker.network_gates import AutoencoderGate
     return _composition("ae", _network_estimator(models),
                         AutoencoderGate(models["autoencoder"], models.runnable["autoencoder"]),
-                        params.young_track_plots_ae, window_m, params, learned=(False, True))
+                        params.association.young_track_plots_ae, window_m, params, learned=(False, True))
 
 
 def _classical(name: str, kind: str, global_nearest: bool):
@@ -127,7 +129,8 @@ def _classical(name: str, kind: str, global_nearest: bool):
         from pipeline.tracker.gate import ChiSquareGate
         from pipeline.tracker.kalman import KalmanEstimator
         return _composition(name, KalmanEstimator(models[TUNED_FILTERS][kind]),
-                            ChiSquareGate(params.kalman_gate_probability), params.young_track_plots, window_m, params,
+                            ChiSquareGate(params.association.kalman_gate_probability),
+                            params.association.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None)
     return compose
 
@@ -137,16 +140,18 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
     (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
     covariance rather than the `window_m` ball, which let clutter through to confirmed tracks (issue 18);
-    and never beyond `tracker.lstm_update_gate_m` of the prediction (`BoundedChiSquareGate`). The start
+    and never beyond `tracker.lstm_update.gate_m` of the prediction (`BoundedChiSquareGate`). The start
     velocities span the training's speeds, so a faster target's second plot falls outside every young
-    gate and each plot starts a track (issue 27): with `tracker.young_window_fallback` the young gate
+    gate and each plot starts a track (issue 27): with `tracker.lstm_update.young_window_fallback` the young gate
     also takes what the `window_m` ball takes (`RadiusFloorGate`), as every other method's does."""
     from pipeline.tracker.gate import BoundedChiSquareGate, RadiusFloorGate
     from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    gate = BoundedChiSquareGate(params.kalman_gate_probability, params.lstm_update_gate_m)
-    young_gate = RadiusFloorGate(gate, window_m) if params.young_window_fallback else gate
+    gate = BoundedChiSquareGate(params.association.kalman_gate_probability,
+                                params.lstm_update.gate_m)
+    young_gate = RadiusFloorGate(gate, window_m) if params.lstm_update.young_window_fallback else gate
     return _composition("lstm_update", LSTMUpdateEstimator(models[LSTM_UPDATE], seed), gate,
-                        params.young_track_plots, window_m, params, young_gate=young_gate, learned=(True, True))
+                        params.association.young_track_plots, window_m, params, young_gate=young_gate,
+                        learned=(True, True))
 
 
 def _kalman_net(name: str, global_nearest: bool):
@@ -155,8 +160,8 @@ def _kalman_net(name: str, global_nearest: bool):
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
         estimator = KalmanNetEstimator(models[KALMAN_NET])
-        return _composition(name, estimator, PlotScaledGate(estimator, params.kalman_gate_probability),
-                            params.young_track_plots, window_m, params,
+        return _composition(name, estimator, PlotScaledGate(estimator, params.association.kalman_gate_probability),
+                            params.association.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None, learned=(False, True))
     return compose
 
@@ -206,8 +211,8 @@ def check_params(params: "Params") -> None:
     """The names params gives that this registry owns (ParamError naming the key and the value): the
     tracker's management rule, every evaluation run's method and rule, the evaluation's references,
     and the fusion stage's local tracker, which must give covariances."""
-    if params.tracker.management not in MANAGEMENT:
-        raise ParamError(f"tracker.management = {params.tracker.management!r}: must be one of {MANAGEMENT}")
+    if params.tracker.management.rule not in MANAGEMENT:
+        raise ParamError(f"tracker.management.rule = {params.tracker.management.rule!r}: must be one of {MANAGEMENT}")
     for index, run in enumerate(params.evaluate.runs):
         if run.method not in TRACKERS:
             raise ParamError(f"evaluate.runs[{index}].method = {run.method!r}: must be one of {TRACKERS}")
@@ -239,13 +244,13 @@ def management(rule: str, params: "TrackerParams") -> "TrackManagement":
     rules = {THESIS_RULE: ThesisWeights.from_params, M_OF_N_RULE: MOfN.from_params}
     if rule not in rules:
         raise ValueError(f"track management {rule!r}: must be one of {list(rules)}")
-    return rules[rule](params)
+    return rules[rule](params.management)
 
 
 def compose(name: str, models: "Models", params: "TrackerParams", window_m: float, seed: Seed,
             management_rule: str | None = None) -> "Composition":
     """The tracker of method `name` for one run (its estimator keeps per-track state: one per run),
-    under the track management rule `management_rule` (None: `params.management`)."""
+    under the track management rule `management_rule` (None: `params.management.rule`)."""
     from dataclasses import replace
     composition = method(name).compose(models, params, window_m, seed)
     if management_rule is None:

@@ -52,7 +52,7 @@ from pipeline.recordings.plot_table import Plots
 from pipeline.tracker.management import TrackManagement
 
 TIME_QUANTUM_S = 1.0 / 128.0  # ASTERIX CAT048 I048/140 time-of-day resolution (EUROCONTROL CAT048 ed. 1.32)
-DEFAULT_CELL_M = 20000.0  # params' default tracker.prefilter_m; `track` passes the run's own
+DEFAULT_CELL_M = 20000.0  # params' default tracker.association.prefilter_m; `track` passes the run's own
 _AXIS = 1 << 32           # a cube's key packs its three indices, each offset by half this, into one int
 
 
