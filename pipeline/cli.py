@@ -11,6 +11,7 @@ from datetime import date
 from pathlib import Path
 
 from pipeline.association.registry import NAMES as ASSOCIATION_METHODS
+from pipeline.bench.engine import SchedulerUnreachable
 from pipeline.filters.tuning import TuningError
 from pipeline.io import InputError, TrainingDiverged
 from pipeline.learning.experiment_tracking import TrackingError
@@ -344,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.quiet)
     try:
         return args.handler(args) or 0
-    except (ParamError, InputError, RouteGenerationError, TrackingError, TrainingDiverged, TuningError,
-            UnknownMethod) as error:
+    except (ParamError, InputError, RouteGenerationError, SchedulerUnreachable, TrackingError, TrainingDiverged,
+            TuningError, UnknownMethod) as error:
         log.error("%s", error)
         return 2

@@ -234,3 +234,31 @@ def postgres_database(name: str = "mlflow") -> Iterator[str]:
             run(str(programs / "pg_ctl"), "-D", str(data), "-m", "immediate", "-w", "stop")
     finally:
         shutil.rmtree(directory, ignore_errors=True)
+
+
+def _dask(program: str, *arguments: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", f"distributed.cli.dask_{program}", *arguments],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+@contextmanager
+def dask_cluster(folder: Path, workers: int = 2) -> Iterator[str]:
+    """A Dask scheduler and `workers` one-thread workers on 127.0.0.1, each its own process started
+    from the command line as on machines apart; yields the scheduler's address."""
+    import distributed
+
+    scheduler_file = folder / "dask-scheduler.json"
+    processes = [_dask("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                       "--scheduler-file", str(scheduler_file))]
+    try:
+        processes += [_dask("worker", "--scheduler-file", str(scheduler_file), "--nthreads", "1", "--nworkers", "1",
+                            "--no-dashboard", "--host", "127.0.0.1") for _ in range(workers)]
+        with distributed.Client(scheduler_file=str(scheduler_file), timeout=60) as client:
+            client.wait_for_workers(workers, timeout=60)
+            address = client.scheduler.address
+        yield address
+    finally:
+        for process in processes[::-1]:
+            process.terminate()
+        for process in processes:
+            process.wait(timeout=30)

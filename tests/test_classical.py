@@ -14,6 +14,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import dask
 import numpy as np
 import pyarrow as pa
 import pymap3d
@@ -22,7 +23,7 @@ from filterpy.common import Q_discrete_white_noise
 from scipy.stats import binom, chi2
 
 from pipeline import io
-from pipeline.bench import ospa
+from pipeline.bench import engine, ospa
 from pipeline.filters import batch_filters, classical_filters, motion_models, tuning
 from pipeline.filters.classical_filters import FilterSettings
 from pipeline.geometry import geodesy
@@ -629,10 +630,22 @@ def test_tune_stage_that_does_not_converge_saves_nothing(simulated_split, make_p
     assert not (tmp_path / "reports" / "kalman_tuning.json").exists()
 
 
+def test_tune_stage_with_an_unreachable_scheduler_stops_naming_it_and_saves_nothing(simulated_split, make_params,
+                                                                                     tracking_uri, tmp_path,
+                                                                                     monkeypatch):
+    _, simulated = simulated_split
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", tracking_uri)
+    with dask.config.set({"scheduler-address": "tcp://127.0.0.1:9"}), pytest.raises(
+            engine.SchedulerUnreachable, match="DASK_SCHEDULER_ADDRESS=tcp://127.0.0.1:9"):
+        run_tune(make_params(1), simulated, tmp_path / "models", tmp_path / "reports")
+    assert not (tmp_path / "models").exists() or not any((tmp_path / "models").iterdir())
+    assert not (tmp_path / "reports").exists() or not any((tmp_path / "reports").iterdir())
+
+
 def test_tune_stage_gives_the_same_files_with_one_and_two_workers(simulated_split, make_params, tracking_uri,
                                                                   tmp_path, monkeypatch, caplog):
-    """compute.workers = 1 tunes the three filters in the stage's process, 2 in two spawned worker
-    processes: models/kalman_tuned.json is byte for byte the same, and so is reports/kalman_tuning.json
+    """compute.workers = 1 tunes the three filters in the stage's process, 2 on a local Dask cluster of
+    two worker processes: models/kalman_tuned.json is byte for byte the same, and so is reports/kalman_tuning.json
     but for each filter's `seconds`. The workers' progress lines reach the stage's log."""
     _, simulated = simulated_split
     monkeypatch.setenv("MLFLOW_TRACKING_URI", tracking_uri)

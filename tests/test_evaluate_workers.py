@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import dask
 import numpy as np
 import pyarrow as pa
 import pytest
@@ -21,6 +22,7 @@ from pipeline import io
 from pipeline.simulation import routes, simulate
 from pipeline.stages.evaluate_stage import run_evaluate
 from tests import tracker_fixtures as tf
+from tests.servers import dask_cluster
 
 # Third-party deprecation notices (Lightning's pytree use), not ours.
 pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.* is deprecated")
@@ -92,3 +94,14 @@ def test_one_and_two_workers_write_the_same_reports(inputs, tmp_path, monkeypatc
     assert set(metrics["runs"]) == {"via_4000", "mia_4000", "ae_5000", "radius_4000", "kalman_cv_4000",
                                     "imm_gnn_4000", "imm_gnn_4000_m_of_n", "plots_reference", "oracle_reference"}
     assert all(run["NOPA"] > 0 for run in metrics["runs"].values())
+
+
+def test_a_cluster_of_workers_apart_writes_the_same_reports(inputs, tmp_path, monkeypatch):
+    """The units sent to a scheduler and two workers started as their own processes (as on machines
+    apart, DASK_SCHEDULER_ADDRESS naming the scheduler): the reports of one process, byte for byte."""
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    alone = files(evaluate(inputs, 1, tmp_path / "one"))
+    with dask_cluster(tmp_path) as address, dask.config.set({"scheduler-address": address}):
+        apart = files(evaluate(inputs, 1, tmp_path / "cluster"))
+    assert without_speeds(alone.pop("tracker_metrics.json")) == without_speeds(apart.pop("tracker_metrics.json"))
+    assert alone == apart

@@ -1,4 +1,4 @@
-"""Evaluate trackers over scenarios: one unit per (run, scenario), spread over processes.
+"""Evaluate trackers over scenarios: one unit per (run, scenario), run on the bench's engine.
 
 Each scenario is one radar recording tracked on its own, as in the thesis. The MIA
 sampling draws from a stream seeded by (tracker seed, scenario), so results do not depend
@@ -10,7 +10,8 @@ where the tracker gives covariances, and its speed in plots per second (tracking
 references bound the problem: `plots`, the target's raw plots taken as the estimate with the
 true association, and `oracle`, the tuned IMM given the true association.
 
-The units are all independent, spread over `compute.workers` processes (1: all in this one).
+The units are all independent, run on the bench's engine (`pipeline.bench.engine`: `compute.workers`
+Dask worker processes, 1: all in this one, or the workers of the scheduler DASK_SCHEDULER_ADDRESS names).
 Units are handed out largest first so no worker is left with a long one at the end, and their
 results are put together by run and scenario, never in the order they finish: the metrics are
 the same byte for byte whatever the number of workers, except the speeds, which are timings.
@@ -30,7 +31,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import io
-from pipeline.bench import gospa, ospa, unit_pool
+from pipeline.bench import gospa, ospa, engine
 from pipeline.bench.runs import Run, evaluated
 from pipeline.bench.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
 from pipeline.params import Params
@@ -252,7 +253,7 @@ def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) ->
 
 def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
                  ) -> tuple[dict[Run, dict], dict[Run, np.ndarray], dict[int, dict], dict[Run, dict]]:
-    """Every run over every scenario, in `workers` processes: each run's metrics, the OSPA of
+    """Every run over every scenario, on `workers` workers (`engine.completed_units`): each run's metrics, the OSPA of
     every scan (scenarios in order), the example run's updates of the pictured scenarios by
     scenario id, and each run's metrics by route strategy (`metrics_by_strategy`), by run in
     `evaluation.runs` order. Each run's metrics are logged, after `label`, as soon as its last
@@ -264,8 +265,8 @@ def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
     workers = max(1, min(workers, len(units)))
     parts: dict[Run, dict[int, UnitResult]] = {run: {} for run in evaluation.runs}
     results, per_scan, examples, by_strategy = {}, {}, {}, {}
-    report = progress_logger(f"{label} ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((run, index), result) in enumerate(unit_pool.completed_units(
+    report = progress_logger(f"{label} ({engine.where(workers)})")
+    for done, ((run, index), result) in enumerate(engine.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
         parts[run][index] = result
         report(done, len(units))

@@ -1,5 +1,5 @@
 """Evaluate trackers on the multi-target scenes (`pipeline.simulation.scenes`): one unit per (run, scene),
-spread over processes as `pipeline.bench.evaluation` spreads its (run, scenario) units.
+run on the bench's engine (`pipeline.bench.engine`) as `pipeline.bench.evaluation` runs its (run, scenario) units.
 
 Each scene is one radar recording tracked whole: all its aircraft and its clutter at once. The
 runs are those of `evaluate.scene_runs` (`Evaluate.runs_on_scenes`) and the registered
@@ -43,7 +43,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import io
-from pipeline.bench import evaluation, gospa, ospa, unit_pool
+from pipeline.bench import evaluation, gospa, ospa, engine
 from pipeline.bench.runs import Run
 from pipeline.params import Params
 from pipeline.progress import progress_logger
@@ -202,7 +202,7 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
 
 def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, int]
                  ) -> tuple[dict[Run, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
-    """Every run over every scene in `workers` processes: each run's metrics by run, in `evaluation.runs`
+    """Every run over every scene on `workers` workers (`engine.completed_units`): each run's metrics by run, in `evaluation.runs`
     order (logged as soon as its last unit is in), and the updates and assignment of the `example` unit
     (run, scene index)."""
     tracked = evaluation.scenes
@@ -216,8 +216,8 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, 
     workers = max(1, min(workers, len(units)))
     parts: dict[Run, dict[int, SceneResult]] = {run: {} for run in evaluation.runs}
     results, pictured = {}, None
-    report = progress_logger(f"evaluate_scenes ({workers} worker{'s' if workers > 1 else ''})")
-    for done, ((run, index, _), result) in enumerate(unit_pool.completed_units(
+    report = progress_logger(f"evaluate_scenes ({engine.where(workers)})")
+    for done, ((run, index, _), result) in enumerate(engine.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
         parts[run][index] = result
         pictured = result.pictured or pictured

@@ -4,23 +4,21 @@ Writes `models/kalman_tuned.json` (what the tracker and the comparison load) onl
 filter tuned; `reports/kalman_tuning.json` has each filter's cost, error and NEES before and
 after. One MLflow run records the same.
 
-The three filters tune independently, so with `compute.workers` > 1 they run in that many
-worker processes (spawned, not forked: the parent may hold threads), the IMM first because it
-takes about as long as the other two together. Every filter gets the same inputs whatever the
-number of workers and the results are gathered by kind, so the outputs do not depend on it
-(only the `seconds` in the report do). The workers' log lines go through the stage's logging.
+The three filters tune independently, so with `compute.workers` > 1 (or a Dask scheduler named
+by DASK_SCHEDULER_ADDRESS) they run on the bench's engine (`pipeline.bench.engine`), the IMM first
+because it takes about as long as the other two together. Every filter gets the same inputs
+wherever it runs and the results are gathered by kind, so the outputs do not depend on it (only
+the `seconds` in the report do). The workers' log lines go through the stage's logging.
 """
 
 from __future__ import annotations
 
 import logging
-import logging.handlers
-import multiprocessing
 import time
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from pipeline import io
+from pipeline.bench import engine
 from pipeline.filters import tuning
 from pipeline.filters.classical_filters import KINDS, FilterSettings
 from pipeline.learning import experiment_tracking
@@ -63,41 +61,37 @@ def _log_tuned(kind: str, entry: dict) -> None:
              entry["switch_probability"], entry["cost_evaluations"], entry["seconds"])
 
 
-def _log_through(queue: multiprocessing.Queue, level: int) -> None:
-    """Worker initializer: send every log record at `level` or above to the stage's process."""
-    root = logging.getLogger()
-    root.handlers[:] = [logging.handlers.QueueHandler(queue)]
-    root.setLevel(level)
+def _tasks(params: Params, material: tuning.Sequences) -> dict[str, tuple]:
+    """Each filter kind's `tune_filter` arguments: the same wherever it runs."""
+    return {kind: (start_settings(kind, params), material, params.kalman.cost, params.kalman.max_iterations)
+            for kind in KINDS}
+
+
+def _tuned_kind(tasks: dict[str, tuple], kind: str) -> tuple[FilterSettings, dict] | tuning.TuningError:
+    """One kind tuned, or the TuningError it stopped with (raised by `tune_all` once all are in)."""
+    try:
+        return tune_filter(*tasks[kind])
+    except tuning.TuningError as error:
+        return error
 
 
 def tune_all(params: Params, material: tuning.Sequences) -> dict[str, tuple[FilterSettings, dict]]:
-    """Every filter kind tuned (`tune_filter`), by kind in KINDS order, in `params.workers` processes.
+    """Every filter kind tuned (`tune_filter`), by kind in KINDS order, on `params.workers` workers of
+    the bench's engine (`pipeline.bench.engine`: this process, a local cluster or a named scheduler).
 
     Raises the TuningError of the first kind (in KINDS order) that failed, after all have finished."""
-    tasks = {kind: (start_settings(kind, params), material, params.kalman.cost, params.kalman.max_iterations)
-             for kind in KINDS}
-    if params.workers == 1:
-        results = {}
-        for kind in KINDS:
-            results[kind] = tune_filter(*tasks[kind])
-            _log_tuned(kind, results[kind][1])
-        return results
-    context = multiprocessing.get_context("spawn")
-    queue = context.Queue()
-    listener = logging.handlers.QueueListener(queue, *logging.getLogger().handlers, respect_handler_level=True)
-    listener.start()
-    try:
-        with ProcessPoolExecutor(min(params.workers, len(KINDS)), mp_context=context, initializer=_log_through,
-                                 initargs=(queue, log.getEffectiveLevel())) as pool:
-            futures: dict[str, Future] = {kind: pool.submit(tune_filter, *tasks[kind])
-                                          for kind in sorted(KINDS, key=LONGEST_FIRST.index)}
-            kinds = {future: kind for kind, future in futures.items()}
-            for future in as_completed(kinds):
-                if future.exception() is None:
-                    _log_tuned(kinds[future], future.result()[1])
-            return {kind: futures[kind].result() for kind in KINDS}
-    finally:
-        listener.stop()
+    units = [(kind,) for kind in sorted(KINDS, key=LONGEST_FIRST.index)]
+    tasks = _tasks(params, material)
+    results = {}
+    for (kind,), result in engine.completed_units(units, min(params.workers, len(KINDS)), _tuned_kind, tasks,
+                                                  _tasks, (params, material)):
+        results[kind] = result
+        if not isinstance(result, tuning.TuningError):
+            _log_tuned(kind, result[1])
+    failed = [results[kind] for kind in KINDS if isinstance(results[kind], tuning.TuningError)]
+    if failed:
+        raise failed[0]
+    return {kind: results[kind] for kind in KINDS}
 
 
 def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir: Path) -> None:
