@@ -3,8 +3,9 @@
 A tiny test split (two routes of each of the thesis's two strategies, each scenario cut to its
 first 15 minutes), tiny trained networks (tests/tracker_fixtures.py) and the classical filters at their start values,
 evaluated with one run of each kind (network gates, the young-track radius, classical
-nearest and global nearest neighbour, one under the m_of_n management rule) and both references: once in the stage's process, once
-over two worker processes. Everything written must be equal byte for byte, except the speed
+nearest and global nearest neighbour, one under the m_of_n management rule) and both references, on two
+draws of every scenario (`evaluate.seeds`): once in the stage's process, once over two local Dask workers;
+and on one draw, in the stage's process and on a scheduler and two workers started apart. Everything written must be equal byte for byte, except the speed
 of each run (`plots_per_second`), a timing.
 """
 
@@ -61,9 +62,9 @@ def inputs(tmp_path_factory) -> tuple[Path, Path, Path]:
     return folder / "simulated", folder / "routes", models
 
 
-def evaluate(inputs: tuple[Path, Path, Path], workers: int, reports: Path) -> Path:
+def evaluate(inputs: tuple[Path, Path, Path], workers: int, reports: Path, seeds: int = 2) -> Path:
     params = tf.make_params({**TEST_SPLIT, "evaluate.runs": RUNS, "evaluate.site_runs": [], "evaluate.scene_runs": [], "evaluate.example_scenarios": 2,
-                             "evaluate.example_run": "via_4000", "compute.workers": workers})
+                             "evaluate.example_run": "via_4000", "evaluate.seeds": seeds, "compute.workers": workers})
     run_evaluate(params, *inputs, reports)
     return reports
 
@@ -85,7 +86,8 @@ def test_one_and_two_workers_write_the_same_reports(inputs, tmp_path, monkeypatc
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     alone = files(evaluate(inputs, 1, tmp_path / "one"))
     shared = files(evaluate(inputs, 2, tmp_path / "two"))
-    assert sorted(alone) == sorted(shared) == ["ospa_per_scan.png", "tracker_metrics.json", "tracker_tables.md",
+    assert sorted(alone) == sorted(shared) == ["ospa_per_scan.png", "tracker_intervals.json", "tracker_metrics.json",
+                                               "tracker_tables.md",
                                                "tracks/scenario_0.png", "tracks/scenario_1.png"]
     assert without_speeds(alone["tracker_metrics.json"]) == without_speeds(shared.pop("tracker_metrics.json"))
     metrics = json.loads(alone.pop("tracker_metrics.json"))
@@ -100,8 +102,8 @@ def test_a_cluster_of_workers_apart_writes_the_same_reports(inputs, tmp_path, mo
     """The units sent to a scheduler and two workers started as their own processes (as on machines
     apart, DASK_SCHEDULER_ADDRESS naming the scheduler): the reports of one process, byte for byte."""
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    alone = files(evaluate(inputs, 1, tmp_path / "one"))
+    alone = files(evaluate(inputs, 1, tmp_path / "one", seeds=1))
     with dask_cluster(tmp_path) as address, dask.config.set({"scheduler-address": address}):
-        apart = files(evaluate(inputs, 1, tmp_path / "cluster"))
+        apart = files(evaluate(inputs, 1, tmp_path / "cluster", seeds=1))
     assert without_speeds(alone.pop("tracker_metrics.json")) == without_speeds(apart.pop("tracker_metrics.json"))
     assert alone == apart

@@ -79,6 +79,10 @@ def test_default_params_load():
     # GOSPA: a positive cutoff, and an order for which it is a metric
     ("evaluate.gospa_cutoff_m", 0.0, ["evaluate.gospa_cutoff_m", "0.0"]),
     ("evaluate.gospa_order", 0.5, ["evaluate.gospa_order = 0.5", "[1.0, inf]"]),
+    # the bench's draws and intervals (issue 30): at least one draw, an interval narrower than all
+    ("evaluate.seeds", 0, ["evaluate.seeds", "0"]),
+    ("evaluate.confidence", 1.0, ["evaluate.confidence", "1.0"]),
+    ("evaluate.bootstrap_replicates", 5, ["evaluate.bootstrap_replicates", "5"]),
     # the fusion stage's local tracker must give covariances (a network's tracks would stop it after a scene)
     ("fusion.tracker", "via", ["fusion.tracker = 'via'", "'imm_gnn'", "radius, via, mia, ae give none"]),
     ("fusion.methods", ["statistical", "statistical"], ["fusion.methods", "distinct"]),

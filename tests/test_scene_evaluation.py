@@ -86,9 +86,14 @@ def test_a_formation_1_km_apart_gives_two_confirmed_tracks_with_gnn(tmp_path, mo
 
 
 def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
-    """`evaluate_scenes` on one tiny generated scene: every run and the oracle (not the plots
-    reference) with GOSPA's parts adding up to GOSPA; the picture; the comparison's table."""
-    params = tf.make_params({**CLASSICAL, "scenes.count": 1, "scenes.aircraft": 8, "scenes.duration_s": 240.0})
+    """`evaluate_scenes` on two tiny generated scenes, each on two draws of noise and clutter: every run
+    and the oracle (not the plots reference) with GOSPA's parts adding up to GOSPA; the plot counts those
+    of the scenes stage's own draw; intervals over the scenes, the draws drawn again with the same
+    layouts; the picture; the comparison's table."""
+    params = tf.make_params({**CLASSICAL, "scenes.count": 2, "scenes.aircraft": 8, "scenes.duration_s": 240.0,
+                             "evaluate.seeds": 2})
+    again = scene_evaluation.drawn_scenes(params, 1)
+    assert [scene.scenario_id for scene in again] == [0, 1] and all(scene.draw == 1 for scene in again)
     route_table, plots, truth = scenes.generate_scenes(params)
     io.write_parquet(route_table, tmp_path / "scenes" / "routes.parquet")
     simulate.write_split(plots, truth, simulate.radar_description(params), tmp_path / "scenes")
@@ -99,6 +104,11 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
     for values in report["runs"].values():
         parts = sum(values[f"GOSPA_{part}"] for part in ("localisation", "missed", "false"))
         assert parts == pytest.approx(values["GOSPA"]) and values["fragmentation"] >= 0.0
+    intervals = json.loads((tmp_path / "reports" / "scene_intervals.json").read_text())
+    assert intervals["units"] == 4 and intervals["clusters"] == 2
+    for name, values in report["runs"].items():
+        low, high = intervals["runs"][name]["GOSPA"]
+        assert low <= values["GOSPA"] <= high
     assert (tmp_path / "reports" / "scene_example.png").read_bytes()[:4] == b"\x89PNG"
     table = comparison_tables.scenes_table(with_records(report["runs"], declared_runs(params), "scene_metrics.json"))
     assert table.splitlines()[0].startswith("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track "

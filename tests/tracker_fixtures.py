@@ -49,8 +49,10 @@ NOISE_M = (50.0, 50.0, 30.0)  # synthetic plot noise in east, north, up
 # ----------------------------------------------------------------------------- params
 
 def params_tree(changes: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """The default params.yaml tree with dotted keys changed, e.g. {"windows.frame": "enu"}."""
+    """The default params.yaml tree with dotted keys changed, e.g. {"windows.frame": "enu"}; evaluations
+    on one draw of each scenario (`evaluate.seeds`: the tests that need more say so)."""
     tree = copy.deepcopy(default_params_tree())
+    tree["evaluate"]["seeds"] = 1
     for dotted, value in (changes or {}).items():
         *parents, key = dotted.split(".")
         node = tree

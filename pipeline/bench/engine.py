@@ -13,10 +13,12 @@ filter kind). `completed_units` runs them
   at the same paths (a shared file system, or the same checkout at the same place).
 
 Dask was chosen over Ray by measuring both on the evaluation's units (`benchmarks/bench_engines.py`,
-docs/speed.md): on 2 cores Dask's local cluster starts in about a second where Ray's runtime takes
-several, and its per-unit overhead is a few milliseconds, which units of tens of milliseconds to
-seconds do not feel; both rerun the units of a lost worker. Dask also runs from a plain
-`pip install` with no daemon to keep, and its scheduler is one command on a cluster.
+docs/speed.md): on the 2 shared cores neither ran the units faster beyond the noise, both start a
+local cluster in 6-12 s and rerun a lost worker's units; Ray's per-unit overhead is lower (2 ms
+against 5-9), which units of 0.1-10 s do not feel. Dask's local cluster is the worker processes and a
+scheduler thread where Ray adds daemons of its own (GCS, raylet, dashboard, log monitor) that take
+CPU on a 2-core laptop, and a Dask cluster is two commands and one environment variable on machines
+that have this package's environment.
 
 Each worker prepares its own state once per call (reads the material, loads the models), the first
 time it is given a unit of the call (`prepare(*arguments)`, kept under the call's id until a unit of

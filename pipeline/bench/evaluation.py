@@ -10,6 +10,11 @@ where the tracker gives covariances, and its speed in plots per second (tracking
 references bound the problem: `plots`, the target's raw plots taken as the estimate with the
 true association, and `oracle`, the tuned IMM given the true association.
 
+With `evaluate.seeds` > 1 every scenario is tracked again on further draws of the radar's noise,
+detections and clutter over the same route (`drawn_scenarios`); a run's metrics are over all of them,
+its counts (NOPA, NOFPA, plots, switches) means per draw, and their confidence intervals
+(`metric_intervals`, `pipeline.bench.intervals`) resample the routes, each with all its draws.
+
 The units are all independent, run on the bench's engine (`pipeline.bench.engine`: `compute.workers`
 Dask worker processes, 1: all in this one, or the workers of the scheduler DASK_SCHEDULER_ADDRESS names).
 Units are handed out largest first so no worker is left with a long one at the end, and their
@@ -21,6 +26,7 @@ routes at other sites) both run their scenarios through here.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -31,7 +37,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import io
-from pipeline.bench import gospa, ospa, engine
+from pipeline.bench import engine, gospa, intervals, ospa
 from pipeline.bench.runs import Run, evaluated
 from pipeline.bench.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
 from pipeline.params import Params
@@ -48,6 +54,7 @@ from pipeline.tracker.updates import COLUMNS
 
 log = logging.getLogger("pipeline")
 
+DRAW_FOLDER = "pipeline-draw"  # the prefix of a draw's temporary split in the system's temporary folder
 PLOTS_REFERENCE = "plots"     # the target's raw plots with the true association (not a tracker)
 PLOTS_REFERENCE_COST = 0.03   # its relative cost (see registry.Method.relative_cost)
 SPEED = "plots_per_second"    # the one metric that is a timing, not a result
@@ -62,6 +69,7 @@ class Scenario:
     scans: np.ndarray             # each plot's antenna scan
     coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
     strategy: str                 # the route's strategy (routes.STRATEGIES), for metrics by kind of flight
+    draw: int = 0                 # its draw of noise, detections and clutter (0: the simulate stage's plots)
 
 
 def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
@@ -95,6 +103,28 @@ def read_scenarios(params: Params, simulated_dir: Path, routes_dir: Path) -> lis
                           io.read_parquet(simulated_dir / split / "truth.parquet", simulate.TRUTH_SCHEMA))
 
 
+def draw_seed(simulate_seed: int, draw: int) -> int:
+    """The radar's seed of draw `draw`: the simulate stage's own for draw 0, else one from (simulate seed, draw)."""
+    if draw == 0:
+        return simulate_seed
+    return int(np.random.SeedSequence([simulate_seed, draw]).generate_state(1)[0])
+
+
+def drawn_scenarios(params: Params, routes_dir: Path, draw: int) -> list[Scenario]:
+    """The evaluated split's scenarios simulated again with the seed of `draw` (> 0): the same routes,
+    manoeuvres and times, fresh noise, detections and clutter. Made where it is needed (each worker
+    makes its own, the same bytes: a cluster needs no shared temporary files), in a temporary folder
+    laid out as the stages lay theirs out, read back as the simulate stage's plots are."""
+    drawn = dataclasses.replace(params, simulate_seed=draw_seed(params.simulate_seed, draw))
+    split = params.routes.split(params.evaluate.split)
+    route_table = io.read_parquet(routes_dir / f"{split.name}.parquet", routes.ROUTE_SCHEMA)
+    plots, truth = simulate.simulate_split(drawn, split, route_table)
+    with io.temporary_folder(DRAW_FOLDER) as folder:
+        simulate.write_split(plots, truth, simulate.radar_description(drawn), folder / split.name)
+        scenarios = read_scenarios(params, folder, routes_dir)
+    return [dataclasses.replace(scenario, draw=draw) for scenario in scenarios]
+
+
 def _clipped(trajectory: object) -> object:
     """The route's position at any time, held at its ends outside it."""
     start, end = trajectory.x[0], trajectory.x[-1]
@@ -117,12 +147,18 @@ def reference_updates(scenario: Scenario, method: str, models: Models, params: P
     return {name: values[name] for name in COLUMNS}
 
 
+def tracker_seed(params: Params, scenario: object) -> list[int]:
+    """The seed of a run's random draws (MIA's samples, the LSTM update's dropout masks) on `scenario`
+    (a Scenario or a Scene): (tracker seed, scenario id), and its draw beyond the first."""
+    draw = getattr(scenario, "draw", 0)
+    return [params.tracker.seed, scenario.scenario_id, *([draw] if draw else [])]
+
+
 def tracker_runs(params: Params, models: Models) -> dict[Run, callable]:
     """Every run of params, and the references (`runs.evaluated`), as run -> track(scenario)."""
     def method_run(run: Run) -> callable:
         return lambda scenario: track(scenario.plots, registry.compose(
-            run.method, models, params.tracker, run.window_m, [params.tracker.seed, scenario.scenario_id],
-            run.management))
+            run.method, models, params.tracker, run.window_m, tracker_seed(params, scenario), run.management))
 
     def reference_run(run: Run) -> callable:
         return lambda scenario: reference_updates(scenario, run.method, models, params)
@@ -164,12 +200,15 @@ class Evaluation:
 
 
 def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path) -> Evaluation:
-    """The scenarios of the evaluated split and every run, with what the runs need loaded (and
+    """The scenarios of the evaluated split, the simulate stage's and those of every further draw of
+    `evaluate.seeds` (`drawn_scenarios`), draw by draw, and every run, with what the runs need loaded (and
     checked against params)."""
     models = load_models(models_dir, params, [run.method for run in params.evaluate.runs]
                          + [name for name in params.evaluate.references if name in registry.REFERENCES])
-    return Evaluation(params, (simulated_dir, routes_dir, models_dir), read_scenarios(params, simulated_dir, routes_dir),
-                      tracker_runs(params, models))
+    scenarios = read_scenarios(params, simulated_dir, routes_dir)
+    for draw in range(1, params.evaluate.seeds):
+        scenarios += drawn_scenarios(params, routes_dir, draw)
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), scenarios, tracker_runs(params, models))
 
 
 def evaluate_unit(evaluation: Evaluation, run: Run, index: int) -> UnitResult:
@@ -232,6 +271,22 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
+COUNTS = ("NOFPA", "NOPA", "target_plots", "false_plots", "track_switches")  # sums over the scenarios
+
+
+def per_draw(metrics: dict[str, float], draws: int) -> dict[str, float]:
+    """A run's metrics over `draws` draws of every scenario with its counts (COUNTS) as means per draw,
+    so that they stay those of one test split, the thesis's tables' scale; ratios and means need nothing."""
+    if draws == 1:
+        return metrics
+    return {name: value / draws if name in COUNTS else value for name, value in metrics.items()}
+
+
+def draws_of(scenarios: list[Scenario]) -> int:
+    """The number of draws the scenarios hold (`evaluate.seeds`, or fewer for a list cut short)."""
+    return len({scenario.draw for scenario in scenarios})
+
+
 def relative_cost(run: Run, scenario: Scenario) -> float:
     """Rough tracking time of one unit (`run`, one scenario), to hand out the largest first."""
     method = run.registered
@@ -246,25 +301,45 @@ def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) ->
     for strategy in routes.STRATEGIES:
         chosen = [i for i, scenario in enumerate(scenarios) if scenario.strategy == strategy]
         if chosen:
-            values = run_metrics([ordered[i] for i in chosen], sum(len(scenarios[i].plots) for i in chosen))
+            values = per_draw(run_metrics([ordered[i] for i in chosen], sum(len(scenarios[i].plots) for i in chosen)),
+                              draws_of(scenarios))
             by_strategy[strategy] = {key: value for key, value in values.items() if key != SPEED}
     return by_strategy
 
 
+PAIRED = ("OSPA", "GOSPA", "ROCA", "MAE", "tracks_per_aircraft")  # the metrics the comparison's verdicts compare
+CONSTANT = ("target_plots", "false_plots", SPEED)  # the same on every resample, or a timing: no interval
+
+
+def metric_intervals(params: Params, scenarios: list[Scenario], units: dict[Run, list[UnitResult]]) -> dict:
+    """The 95 % (`evaluate.confidence`) intervals of every run's metrics and, for the metrics of PAIRED, of
+    the difference of every pair of runs (`intervals.run_intervals`, over the `scenarios`, a route's draws
+    resampled together), by run name."""
+    chosen = params.evaluate
+    first = next(iter(units.values()))
+    names = [name for name in run_metrics(first, 0) if name not in CONSTANT]
+    draws = draws_of(scenarios)
+    return intervals.run_intervals({run.name: results for run, results in units.items()},
+                                   lambda results: per_draw(run_metrics(results, 0), draws), names, PAIRED,
+                                   chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
+                                   [scenario.scenario_id for scenario in scenarios])
+
+
 def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
-                 ) -> tuple[dict[Run, dict], dict[Run, np.ndarray], dict[int, dict], dict[Run, dict]]:
+                 ) -> tuple[dict[Run, dict], dict[Run, np.ndarray], dict[int, dict], dict[Run, dict],
+                            dict[Run, list[UnitResult]]]:
     """Every run over every scenario, on `workers` workers (`engine.completed_units`): each run's metrics, the OSPA of
     every scan (scenarios in order), the example run's updates of the pictured scenarios by
-    scenario id, and each run's metrics by route strategy (`metrics_by_strategy`), by run in
-    `evaluation.runs` order. Each run's metrics are logged, after `label`, as soon as its last
-    unit is in."""
+    scenario id, each run's metrics by route strategy (`metrics_by_strategy`), and each run's unit
+    results in scenario order (for `metric_intervals`), by run in `evaluation.runs` order. Each run's
+    metrics are logged, after `label`, as soon as its last unit is in."""
     scenarios = evaluation.scenarios
     plots = sum(len(s.plots) for s in scenarios)
     units = sorted(((run, index) for run in evaluation.runs for index in range(len(scenarios))),
                    key=lambda unit: -relative_cost(unit[0], scenarios[unit[1]]))
     workers = max(1, min(workers, len(units)))
     parts: dict[Run, dict[int, UnitResult]] = {run: {} for run in evaluation.runs}
-    results, per_scan, examples, by_strategy = {}, {}, {}, {}
+    results, per_scan, examples, by_strategy, units_by_run = {}, {}, {}, {}, {}
     report = progress_logger(f"{label} ({engine.where(workers)})")
     for done, ((run, index), result) in enumerate(engine.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
@@ -272,12 +347,12 @@ def evaluate_all(evaluation: Evaluation, workers: int, label: str = "evaluate"
         report(done, len(units))
         if len(parts[run]) == len(scenarios):
             finished = parts.pop(run)
-            ordered = [finished[i] for i in range(len(scenarios))]
-            results[run] = run_metrics(ordered, plots)
+            ordered = units_by_run[run] = [finished[i] for i in range(len(scenarios))]
+            results[run] = per_draw(run_metrics(ordered, plots), draws_of(scenarios))
             by_strategy[run] = metrics_by_strategy(scenarios, ordered)
             per_scan[run] = np.concatenate([r.scan_ospa for r in ordered])
             examples.update({scenarios[i].scenario_id: r.updates for i, r in enumerate(ordered)
                              if r.updates is not None})
             log.info("%s %s: %s", label, run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
     return ({run: results[run] for run in evaluation.runs}, {run: per_scan[run] for run in evaluation.runs},
-            examples, {run: by_strategy[run] for run in evaluation.runs})
+            examples, {run: by_strategy[run] for run in evaluation.runs}, {run: units_by_run[run] for run in evaluation.runs})

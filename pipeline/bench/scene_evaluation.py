@@ -26,6 +26,10 @@ truth's position at that update's time. Per run, over all scans of all scenes:
 - track purity, per confirmed track ever assigned, averaged over those tracks;
 - speed, the scenes' plots over the tracking time alone (one core).
 
+With `evaluate.seeds` > 1 every scene is tracked again on further draws of the radar's noise,
+detections and clutter (`drawn_scenes`): the metrics are over all draws, track switches a mean per
+draw, and the intervals (`metric_intervals`) resample the scenes, each with all its draws.
+
 Results are put together by run and scene, never in the order the units finish: the metrics but
 the speeds are the same whatever the number of workers.
 """
@@ -43,7 +47,8 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import io
-from pipeline.bench import evaluation, gospa, ospa, engine
+from pipeline.bench import engine, evaluation, gospa, intervals, ospa
+from pipeline.bench.evaluation import DRAW_FOLDER, draw_seed, per_draw
 from pipeline.bench.runs import Run
 from pipeline.params import Params
 from pipeline.progress import progress_logger
@@ -73,6 +78,7 @@ class Scene:
     truth_id: np.ndarray           # (N,) its aircraft's id
     trajectories: dict[int, Callable[[np.ndarray], np.ndarray]]  # aircraft id -> t (s) -> (len(t), 3) m ECEF
     roles: dict[int, str]          # aircraft id -> its role in the scene (scenes.CROSSING ... or a strategy)
+    draw: int = 0                  # its draw of noise, detections and clutter (0: the scenes stage's plots)
 
 
 def _clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -107,6 +113,18 @@ def read_scenes(params: Params, scenes_dir: Path) -> list[Scene]:
     return loaded
 
 
+def drawn_scenes(params: Params, draw: int) -> list[Scene]:
+    """The scenes simulated again with the radar seed of `draw` (> 0, `evaluation.draw_seed`): the same
+    layouts, routes and times (planned from `scenes.seed`), fresh noise, detections and clutter; made
+    where needed, in a temporary folder laid out as the scenes stage lays its out, and read back."""
+    drawn = dataclasses.replace(params, simulate_seed=draw_seed(params.simulate_seed, draw))
+    route_table, plots, truth = scenes.generate_scenes(drawn)
+    with io.temporary_folder(DRAW_FOLDER) as folder:
+        io.write_parquet(route_table, folder / "routes.parquet")
+        simulate.write_split(plots, truth, simulate.radar_description(drawn), folder)
+        return [dataclasses.replace(scene, draw=draw) for scene in read_scenes(params, folder)]
+
+
 def scene_params(params: Params) -> Params:
     """Params whose evaluation runs are the scenes' (`evaluate.scene_runs`) and whose references are
     the registered ones (the oracle)."""
@@ -130,12 +148,16 @@ class SceneEvaluation:
 
 
 def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluation:
-    """The scenes and every run scored on them, with what the runs need loaded."""
+    """The scenes, the scenes stage's and those of every further draw of `evaluate.seeds` (`drawn_scenes`),
+    and every run scored on them, with what the runs need loaded."""
     chosen = scene_params(params)
     models = load_models(models_dir, chosen, [run.method for run in chosen.evaluate.runs]
                          + list(chosen.evaluate.references))
     runs = evaluation.tracker_runs(chosen, models)
-    return SceneEvaluation(chosen, (scenes_dir, models_dir), read_scenes(chosen, scenes_dir), runs,
+    tracked = read_scenes(chosen, scenes_dir)
+    for draw in range(1, chosen.evaluate.seeds):
+        tracked += drawn_scenes(chosen, draw)
+    return SceneEvaluation(chosen, (scenes_dir, models_dir), tracked, runs,
                            {run: evaluation.run_rule(chosen, run) for run in runs})
 
 
@@ -200,11 +222,27 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
+PAIRED = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches")  # the verdicts'
+
+
+def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list[SceneResult]]) -> dict:
+    """The intervals of every run's metrics and of the differences of PAIRED between runs, over the scenes
+    `tracked` (`intervals.run_intervals`, a scene's draws resampled together), by run name."""
+    chosen = params.evaluate
+    first = next(iter(units.values()))
+    names = [name for name in run_metrics(first, 0) if name != SPEED]
+    draws = len({scene.draw for scene in tracked})
+    return intervals.run_intervals({run.name: results for run, results in units.items()},
+                                   lambda results: per_draw(run_metrics(results, 0), draws), names,
+                                   PAIRED, chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
+                                   [scene.scenario_id for scene in tracked])
+
+
 def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, int]
-                 ) -> tuple[dict[Run, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa]]:
-    """Every run over every scene on `workers` workers (`engine.completed_units`): each run's metrics by run, in `evaluation.runs`
-    order (logged as soon as its last unit is in), and the updates and assignment of the `example` unit
-    (run, scene index)."""
+                 ) -> tuple[dict[Run, dict], tuple[dict[str, np.ndarray], gospa.ScanGospa], dict[Run, list[SceneResult]]]:
+    """Every run over every scene on `workers` workers (`engine.completed_units`): each run's metrics by run, in
+    `evaluation.runs` order (logged as soon as its last unit is in), the updates and assignment of the `example`
+    unit (run, scene index), and each run's unit results in scene order (for `metric_intervals`)."""
     tracked = evaluation.scenes
     plots = sum(len(scene.plots) for scene in tracked)
 
@@ -215,7 +253,7 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, 
                     for index in range(len(tracked))), key=cost)
     workers = max(1, min(workers, len(units)))
     parts: dict[Run, dict[int, SceneResult]] = {run: {} for run in evaluation.runs}
-    results, pictured = {}, None
+    results, pictured, units_by_run = {}, None, {}
     report = progress_logger(f"evaluate_scenes ({engine.where(workers)})")
     for done, ((run, index, _), result) in enumerate(engine.completed_units(
             units, workers, evaluate_unit, evaluation, prepare, (evaluation.params, *evaluation.folders)), start=1):
@@ -224,6 +262,8 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, 
         report(done, len(units))
         if len(parts[run]) == len(tracked):
             finished = parts.pop(run)
-            results[run] = run_metrics([finished[i] for i in range(len(tracked))], plots)
+            units_by_run[run] = [finished[i] for i in range(len(tracked))]
+            results[run] = per_draw(run_metrics(units_by_run[run], plots),
+                                               len({scene.draw for scene in tracked}))
             log.info("evaluate_scenes %s: %s", run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
-    return {run: results[run] for run in evaluation.runs}, pictured
+    return {run: results[run] for run in evaluation.runs}, pictured, {run: units_by_run[run] for run in evaluation.runs}

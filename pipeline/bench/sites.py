@@ -71,7 +71,7 @@ def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
     with io.temporary_folder(SITE_FOLDER) as folder:
         place_split(moved, folder, label)
         prepared = evaluation.prepare(moved, folder / "simulated", folder / "routes", models_dir)
-        runs, _, _, _ = evaluation.evaluate_all(prepared, params.workers, label)
+        runs, *_ = evaluation.evaluate_all(prepared, params.workers, label)
     return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, by_name(runs))
 
 

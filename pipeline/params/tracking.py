@@ -163,6 +163,13 @@ class Evaluate(Section):
     ospa_order: float = positive("... and order p")
     gospa_cutoff_m: float = positive("GOSPA (alpha = 2, pipeline/bench/gospa.py) cutoff c ...")
     gospa_order: float = knob("... and order p (GOSPA is a metric for p >= 1)", 1.0)
+    seeds: int = knob("draws of noise, detections and clutter each evaluation repeats over the same routes "
+                      "(1: the simulate stage's alone; draw k > 0 simulates the split again with a seed from "
+                      "(simulate.seed, k))", 1, 1000)
+    bootstrap_replicates: int = knob("resamples of the units behind every metric's confidence interval "
+                                     "(pipeline/bench/intervals.py: the paired percentile bootstrap)", 20, 1_000_000)
+    confidence: float = knob("... the intervals' level (0.95: 95 % intervals)", 0.5, 1.0, open_high=True)
+    bootstrap_seed: int = knob("... and the resamples' seed", 0)
     example_scenarios: int = knob("scenarios drawn in reports/tracks/scenario_<id>.png ...", 0)
     example_run: str = knob("... tracked by this run of runs (<method>_<window>)")
     sites: tuple[Site, ...] = knob("evaluate_sites: the same routes at these radar sites ([]: none)")

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from pipeline.bench.intervals import within_noise
 from pipeline.bench.runs import Run
 from pipeline.reports import site_report
 from pipeline.tracker import registry
@@ -275,12 +276,36 @@ def tuning_table(tuning: dict) -> str:
 
 
 
-def verdict(runs: Mapping[Run, dict], holdout: dict) -> list[str]:
-    """Plain sentences on who wins what, from the numbers."""
+def _paired(intervals: dict | None, metric: str, a: str, b: str) -> list[float] | None:
+    """The paired interval of `a` minus `b` on `metric`, where the report has one."""
+    if intervals is None:
+        return None
+    return intervals.get("paired", {}).get(metric, {}).get(a, {}).get(b)
+
+
+def _outcome(intervals: dict | None, metric: str, n: str, c: str, winner: str) -> str:
+    """'**winner** wins' with the paired interval of n - c that backs it, or a tie where it holds 0
+    (`pipeline.bench.intervals`); without intervals (reports before them) the bare verdict."""
+    pair = _paired(intervals, metric, n, c)
+    if pair is None:
+        return f"**{winner}** wins."
+    if not all(np.isfinite(pair)):
+        return f"**{winner}** wins (no interval: too few scenarios to tell the noise)."
+    interval = f"paired {intervals['level']:.0%} interval of {n} − {c}: [{pair[0]:.4g}, {pair[1]:.4g}]"
+    if within_noise(pair):
+        return f"**a tie within the noise** ({interval} holds 0)."
+    return f"**{winner}** wins ({interval})."
+
+
+def verdict(runs: Mapping[Run, dict], holdout: dict, intervals: dict | None = None) -> list[str]:
+    """Plain sentences on who wins what, from the numbers; with `intervals` (the evaluation's
+    `tracker_intervals.json`) every win is backed by its paired interval, and a difference whose
+    interval holds 0 is called a tie."""
     trackers = {run.name: values for run, values in runs.items() if not run.reference}
     neural = {run.name: v for run, v in runs.items() if run.family == registry.NEURAL}
     classical = {run.name: v for run, v in runs.items() if run.family == registry.CLASSICAL}
-    oracle = next((values for run, values in runs.items() if run.reference and run.method == ORACLE), None)
+    oracle_run = next((run for run in runs if run.reference and run.method == ORACLE), None)
+    oracle = runs[oracle_run] if oracle_run is not None else None
     sentences = []
 
     def best(group: dict, metric: str, low: bool = True) -> str:
@@ -292,7 +317,7 @@ def verdict(runs: Mapping[Run, dict], holdout: dict) -> list[str]:
             n, c = best(neural, metric, low), best(classical, metric, low)
             winner = c if (classical[c][metric] < neural[n][metric]) == low else n
             sentences.append(f"- {what}: best neural {n} {neural[n][metric]:.4g}, best classical {c} "
-                             f"{classical[c][metric]:.4g}; **{winner}** wins.")
+                             f"{classical[c][metric]:.4g}; {_outcome(intervals, metric, n, c, winner)}")
         kept = {group: {k: v for k, v in members.items() if v["ROCA"] >= MAE_MIN_ROCA}
                 for group, members in (("neural", neural), ("classical", classical))}
         if kept["neural"] and kept["classical"]:
@@ -300,13 +325,16 @@ def verdict(runs: Mapping[Run, dict], holdout: dict) -> list[str]:
             winner = c if classical[c]["MAE"] < neural[n]["MAE"] else n
             sentences.append(f"- position error (MAE) among trackers keeping at least {MAE_MIN_ROCA:.0%} of the "
                              f"target plots: best neural {n} {neural[n]['MAE']:.4g} m, best classical {c} "
-                             f"{classical[c]['MAE']:.4g} m; **{winner}** wins.")
+                             f"{classical[c]['MAE']:.4g} m; {_outcome(intervals, 'MAE', n, c, winner)}")
     if oracle is not None and trackers:
         top = best(trackers, "OSPA")
+        gap = _paired(intervals, "OSPA", top, oracle_run.name)
+        backed = "" if gap is None else (f" (paired {intervals['level']:.0%} interval of the OSPA gap: "
+                                         f"[{gap[0]:.4g}, {gap[1]:.4g}])")
         sentences.append(f"- True association (oracle, tuned IMM) reaches OSPA {oracle['OSPA']:.4g} "
                          f"and MAE {oracle['MAE']:.4g} m against the best tracker's "
-                         f"{trackers[top]['OSPA']:.4g} and {trackers[top]['MAE']:.4g} m ({top}): the gap is what "
-                         "association costs.")
+                         f"{trackers[top]['OSPA']:.4g} and {trackers[top]['MAE']:.4g} m ({top}){backed}: the gap is "
+                         "what association costs.")
     if holdout["filter_error_m"]:
         kind = min(holdout["filter_error_m"], key=holdout["filter_error_m"].get)
         sentences.append(f"- Hold-out filtering: the filter network {holdout['network_filter_error_m']:.1f} m, the "

@@ -64,18 +64,36 @@ def tracking_picture(scenario: object, updates: dict[str, np.ndarray], params: P
     return png(figure)
 
 
-def comparison_picture(runs: Mapping[Run, dict]) -> bytes:
-    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top, coloured by family."""
+def comparison_picture(runs: Mapping[Run, dict], intervals: Mapping[str, Mapping[str, list]] | None = None) -> bytes:
+    """OSPA, MAE and ROCA of every tracker side by side, best OSPA on top, coloured by family: a dot per
+    tracker with its confidence interval (`intervals`: the evaluation's per-run intervals by run name and
+    metric, `pipeline.bench.intervals`), on axes spanning the values and intervals rather than from 0,
+    so that the differences show and whether they are larger than the noise."""
     ordered = sorted(runs, key=lambda r: runs[r]["OSPA"], reverse=True)
     figure, axes = plt.subplots(1, 3, figsize=(13, 0.4 * len(ordered) + 1.5), sharey=True)
+    rows = np.arange(len(ordered))
     for axis, (metric, label) in zip(axes, (("OSPA", "OSPA (m)"), ("MAE", "MAE of confirmed tracks (m)"),
                                             ("ROCA", "target plots in confirmed tracks (ROCA)"))):
-        values = [runs[r][metric] if runs[r][metric] is not None else np.nan for r in ordered]
-        colours = [FAMILY_COLOURS[r.family] for r in ordered]
-        axis.barh([r.name for r in ordered], values, color=colours)
+        values = np.array([runs[r][metric] if runs[r][metric] is not None else np.nan for r in ordered], dtype=float)
+        bounds = np.array([(intervals or {}).get(r.name, {}).get(metric, [np.nan, np.nan]) for r in ordered],
+                          dtype=float).reshape(len(ordered), 2)
+        for row, run in enumerate(ordered):
+            colour = FAMILY_COLOURS[run.family]
+            if np.isfinite(bounds[row]).all():
+                axis.plot(bounds[row], [row, row], color=colour, linewidth=2.5, alpha=0.45, solid_capstyle="butt")
+            axis.plot(values[row], row, "o", color=colour, markersize=6)
+        shown = np.concatenate([values, bounds.ravel()])
+        shown = shown[np.isfinite(shown)]
+        if len(shown):
+            low, high = shown.min(), shown.max()
+            margin = 0.05 * (high - low) or 0.05 * max(abs(high), 1.0)
+            axis.set_xlim(low - margin, high + margin)
         axis.set_xlabel(label)
         axis.grid(axis="x", alpha=0.3)
-    axes[0].set_title("blue: neural, orange: classical, grey: references", loc="left", fontsize=9)
+    axes[0].set_yticks(rows, [r.name for r in ordered])
+    axes[0].set_ylim(-0.6, len(ordered) - 0.4)
+    noted = "; bars: confidence intervals over the routes and draws" if intervals else ""
+    axes[0].set_title(f"blue: neural, orange: classical, grey: references{noted}", loc="left", fontsize=9)
     figure.tight_layout()
     return png(figure)
 

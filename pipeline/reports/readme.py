@@ -134,6 +134,12 @@ def _link(path: Path, folder: Path) -> str:
     return Path(os.path.relpath(path, folder)).as_posix()
 
 
+def _tracker_intervals(comparison: dict) -> dict | None:
+    """The test split's intervals (`reports/tracker_intervals.json`, copied by the compare stage), or None
+    for a comparison made before them."""
+    return comparison.get("intervals", {}).get("trackers")
+
+
 def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[str, Run]) -> str:
     """Who wins, every tracker in one table, track continuity, GOSPA and its parts (reports before
     GOSPA have none), the many-aircraft scenes (reports before them have none), the networks against
@@ -142,7 +148,7 @@ def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[
     trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
     gospa = comparison_tables.gospa_table(trackers)
     return "\n\n".join([
-        "\n".join(comparison_tables.verdict(trackers, comparison["holdout"])),
+        "\n".join(comparison_tables.verdict(trackers, comparison["holdout"], _tracker_intervals(comparison))),
         comparison_tables.tracker_table(trackers),
         "Track continuity: tracks per aircraft · ROCA, over all test routes and by route strategy.",
         comparison_tables.continuity_table(trackers, comparison.get("by_strategy", {})),
@@ -189,7 +195,8 @@ def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -
         return "\n".join([HEADLINE_START, "", "No comparison yet: run `dvc repro compare`.", "", HEADLINE_END])
     comparison = json.loads(path.read_text())
     trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
-    return "\n".join([HEADLINE_START, "", *comparison_tables.verdict(trackers, comparison["holdout"]),
+    return "\n".join([HEADLINE_START, "", *comparison_tables.verdict(trackers, comparison["holdout"],
+                                                                    _tracker_intervals(comparison)),
                       "", f"![{COMPARISON_PICTURE}]({_link(reports / 'comparison.png', folder)})", "",
                       HEADLINE_END])
 
