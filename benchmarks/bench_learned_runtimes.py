@@ -8,8 +8,8 @@ and through the LSTM update (`LSTMUpdate.step`, its MC-dropout masks given, then
 - eager: PyTorch as the estimators run it (float64, no gradients);
 - onnx-net: the network part alone (the GRU cell and head; the LSTM cell, dropout and output layer)
   exported to ONNX and run by ONNX Runtime (float64, one thread), the features and filter in eager;
-- script: the whole step traced to TorchScript (`torch.jit.trace`, frozen, `torch.jit.optimize_for_inference`
-  left out: it folds the weights into other kernels);
+- script: the whole step traced to TorchScript (`torch.jit.trace`, as `pipeline.learning.step_runtime`
+  traces the estimators' steps);
 - compile: the whole step through `torch.compile` (inductor, dynamic shapes), where this machine
   can compile it.
 Untrained models of the default params.yaml sizes (speed does not depend on the weights), on one
@@ -220,7 +220,7 @@ def runtimes(module: nn.Module, onnx_step: Callable | None, example: tuple[Tenso
             warnings.simplefilter("ignore")
             traced = torch.jit.trace(module, example, check_trace=False)
             traced(*check)  # another batch size: a shape taken for a constant fails here
-        steps["script"] = torch.jit.freeze(traced.eval())
+        steps["script"] = traced
     except Exception as error:  # noqa: BLE001 - reported in the table
         steps["script"] = f"trace failed: {type(error).__name__}: {str(error).splitlines()[0][:60]}"
     if compiled:

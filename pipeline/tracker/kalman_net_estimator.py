@@ -2,8 +2,12 @@
 
 Every live track runs the trained model's base filter (cv, ca or singer) in PyTorch
 (`pipeline.filters.torch_filters`, float64, no gradients), with the network's recurrent memory kept
-beside it; both sit in tensors by slot, as `pipeline.tracker.kalman.KalmanEstimator` keeps its
-filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
+beside it. A batched step (the network's scales with the prediction, `step_runtime.KalmanNetPlotStep`;
+the update, `KalmanNetUpdate`) runs traced to TorchScript, the same numbers as eager PyTorch in a
+fraction of its dispatch, or eagerly (`tracker.learned_runtime`, `pipeline.learning.step_runtime`),
+on the CPU or a CUDA device (`tracker.device`, `pipeline.learning.devices`: the states, the memory
+and the network live there, numpy arrays come back from every role). Both sit in tensors by slot,
+as `pipeline.tracker.kalman.KalmanEstimator` keeps its filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
 network's `kalman_net.Memory` (hidden (S, H) and the increments' last values), and the scales the
 network gave at the track's last plot (q, and singer's manoeuvre scale) (S,).
 
@@ -27,12 +31,14 @@ network gave at its previous plot (`predict`, the protocol's prediction without 
 against 211 m, ROCA 0.978 against 0.968. The covariance `update` returns is the scaled filter's
 posterior, which the consistency metrics (ANEES) read.
 
-A pair's numbers do not depend on the pairs stepped with it: the network runs on rows padded as
-`pipeline.learning.batch_rows` says (MKL's matrix products and torch's sigmoid otherwise give a row
-of a small call other last bits), and the filter's own steps are elementwise or 3 x 3 to 9 x 9
-products, each the same alone as in a batch. So a scan stepped at once gives the updates of
-stepping it plot by plot, to the bit (`tests/test_kalman_net_tracker.py`); since the padding (issue
-29) a plot's rows differ from the unpadded per-plot calls before it in the last bits.
+A pair's numbers do not depend on the pairs stepped with it: the network (and the prediction with
+its scales, in the same call) runs on rows padded as `pipeline.learning.batch_rows` says (MKL's
+matrix products and torch's sigmoid otherwise give a row of a small call other last bits), and the
+filter's own steps are elementwise or 3 x 3 to 9 x 9 products, each the same alone as in a batch.
+So a scan stepped at once gives the updates of stepping it plot by plot, to the bit
+(`tests/test_learned_scans.py`, both runtimes); since the padding (issue 29) a plot's rows differ
+from the unpadded per-plot calls before it in the last bits. TorchScript runs the same kernels:
+the tracks are those of eager PyTorch, to the bit.
 """
 
 from __future__ import annotations

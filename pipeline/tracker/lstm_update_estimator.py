@@ -12,6 +12,11 @@ with the plot and its measurement covariance, and gives the point estimate and i
 covariance (`LSTMUpdate.estimate_covariance`: the copies' spread and the plot's covariance). Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
 from the estimator's own generator, seeded from the run's seed (the scenario's), so a scenario's
 tracks do not depend on what ran before it in the process (torch's global generator is left as it was).
+The prediction (`step_runtime.LSTMPredict`) and the LSTM step with its calibrated covariance
+(`step_runtime.LSTMStep`) run traced to TorchScript, the same numbers as eager PyTorch in a fraction
+of its dispatch, or eagerly (`tracker.learned_runtime`), on the CPU or a CUDA device (`tracker.device`,
+`pipeline.learning.devices`: the ensembles and the network live there, the masks are drawn on the CPU
+and moved, numpy arrays come back from every role).
 
 The estimator is `pairwise`: `predict` moves the tracks of a whole scan's (track, plot) pairs (or
 of nearest neighbour's look-ahead) in one call, each to its own plot's time, and `update_pairs`
