@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from pipeline.learning import batch_rows, devices, step_runtime
-from pipeline.learning.lstm_update import Ensemble, LSTMUpdate
+from pipeline.learning.lstm_update import FEATURES, Ensemble, LSTMUpdate
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 
@@ -88,7 +88,8 @@ class LSTMUpdateEstimator:
         z = self._tensor(np.full((rows, 3), 6.4e6))
         ensemble, dt = self.model.started(z, self.samples), self._tensor(np.full(rows, 4.0))
         R = self._tensor(np.repeat(np.eye(3)[None] * 1e4, rows, 0))
-        masks = torch.ones(rows, self.samples, 16 + self.model.config.hidden, dtype=self.dtype, device=self.device)
+        masks = torch.ones(rows, self.samples, FEATURES + self.model.config.hidden, dtype=self.dtype,
+                           device=self.device)
         return ((ensemble.x, ensemble.age, dt),
                 (*_parts(ensemble), z + 1e3, R, dt) + (masks,) * self.sample)
 
