@@ -160,7 +160,8 @@ def kalman_net_inputs(model: KalmanNet, rows: int, generator: torch.Generator) -
     state = torch_filters.start(spec, z0, R0)
     x = state.x.clone()
     x[..., 1::2] = noise(rows, 1, 3, scale=200.0)  # velocities
-    return (x, state.P, state.mu, torch.tanh(noise(rows, H)), z0 - noise(rows, 3, scale=1e3), z0 - noise(rows, 3, scale=500.0),
+    return (x, state.P, state.mu, torch.tanh(noise(rows, H)), z0 - noise(rows, 3, scale=1e3),
+            z0 - noise(rows, 3, scale=500.0),
             torch.full((rows,), 4.0, dtype=torch.float64), torch.full((rows,), 3, dtype=torch.long),
             z0 + x[:, 0, 1::2] * 4.0 + noise(rows, 3, scale=100.0), R0, 4.0 + noise(rows).abs())
 

@@ -74,10 +74,10 @@ def lstm_inputs(model: LSTMUpdate, rows: int, generator: torch.Generator, masked
     z0 = torch.tensor([6.4e6, 0.0, 0.0], dtype=torch.float64) + noise(generator, rows, 3, scale=5e4)
     ensemble = model.started(z0, samples)
     hidden = model.config.hidden
-    inputs = (ensemble.x + noise(generator, *ensemble.x.shape, scale=50.0), torch.tanh(noise(generator, rows, samples,
-                                                                                             hidden)),
-              noise(generator, rows, samples, hidden), torch.randint(1, 6, (rows,), generator=generator),
-              z0 + noise(generator, rows, 3, scale=800.0), torch.diag_embed(1e4 + noise(generator, rows, 3).abs() * 1e4),
+    R = torch.diag_embed(1e4 + noise(generator, rows, 3).abs() * 1e4)
+    inputs = (ensemble.x + noise(generator, *ensemble.x.shape, scale=50.0),
+              torch.tanh(noise(generator, rows, samples, hidden)), noise(generator, rows, samples, hidden),
+              torch.randint(1, 6, (rows,), generator=generator), z0 + noise(generator, rows, 3, scale=800.0), R,
               2.0 + 4.0 * torch.rand(rows, generator=generator, dtype=torch.float64))
     if masked:
         inputs += (torch.stack([model.dropout_masks(samples, generator) for _ in range(rows)]),)

@@ -3,22 +3,29 @@
 The tracker's network-scaled Kalman filter and LSTM update (`pipeline.tracker.kalman_net_estimator`,
 `lstm_update_estimator`) step a scan's (track, plot) pairs in one call per role. Each call is a
 hundred to two hundred small tensor operations (features, network, filter), so on the test split's
-few pairs a call costs its Python dispatch: about 1.1-1.6 ms eager at 1 to 8 rows, one thread. The
+few pairs a call costs its Python dispatch: 1.0-2.0 ms eager at 1 to 8 rows, one thread. The
 modules here wrap each step as a function of tensors, so that it can be traced once to TorchScript
-(`torch.jit.trace`), whose interpreter runs the same ATen kernels with a fraction of the dispatch:
-measured (`benchmarks/bench_learned_runtimes.py`, 2 shared cores, one thread) 2-3x faster at 1-8 rows,
-1.2x at 64-512, and to the bit the numbers of eager, so that the tracks are unchanged and a row still
-does not depend on the rows beside it (`batch_rows`). The runtimes (`tracker.learned_runtime`):
+(`torch.jit.trace`), whose interpreter runs the same ATen kernels with less dispatch: measured
+(`benchmarks/bench_learned_runtimes.py`, 2 shared cores, one thread, default params' sizes) the
+network-scaled filter's step 2.6x faster than eager at 1-8 rows, 2.0x at 64, 1.3x at 512; the LSTM
+update's (17 copies a row) 1.9x at 1 row, 1.6x at 8, 1.1x at 64-512; and to the bit the numbers of
+eager, so that the tracks are unchanged and a row still does not depend on the rows beside it
+(`batch_rows`). The runtimes (`tracker.learned_runtime`):
 
-- `script`: the traced function (frozen weights are not folded: `torch.jit.freeze` is not applied);
+- `script`: the traced function (not frozen: `torch.jit.freeze` would fold the weights into
+  constants, which gains nothing measurable here);
 - `eager`: the modules called as they are.
 
-ONNX Runtime of the network part alone (the GRU cell and head, the LSTM cell and output layer)
-gained nothing (0.6-1.7x: the network is a few of the call's operations) and `torch.compile`
-(inductor) was faster at some sizes but gives other last bits than eager, compiles for a minute and
-more per process on this machine, and falls back to eager after its recompilation limit; the
-benchmark prints them beside these. TorchScript is deprecated in torch 2.13 (it still runs; its
-warnings are silenced at the trace).
+The benchmark prints two others beside these. ONNX Runtime of the network part alone (the GRU cell
+and head; the LSTM cell, dropout and output layer) gained little or lost (0.7-1.6x eager: the
+network is a few of the call's operations, and the rest stays eager). `torch.compile` (inductor,
+dynamic shapes) was up to 1.3x faster than TorchScript on the filter's step at 1-8 rows and 1.3-1.6x
+on the LSTM's at 64-512 rows, with rows that did not depend on the batch in the scan tests; it is
+not adopted because it gives other last bits than eager (every tracker metric would have to be
+measured again), it compiles for 36 s (cached) to 85 s (cold) per step and process on this machine,
+which the test split's calls do not win back, and past its recompilation limit it runs eager, other
+bits mid-run. TorchScript is deprecated in torch 2.13 (it still runs; its warnings are silenced at
+the trace).
 
 A traced function takes the batch size from its inputs (sizes are traced as such; a `len()` would
 have been taken for a constant) and runs on the device of the inputs it was traced with

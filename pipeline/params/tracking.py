@@ -112,8 +112,9 @@ class TrackerParams(Section):
     networks: Networks = knob("the thesis networks' tracker")
     mia: MIA = knob("the MIA method's gate")
     lstm_update: LSTMUpdateGate = knob("the lstm_update method's gate")
-    learned_runtime: str = knob("kalman_net's and lstm_update's batched steps: script (traced to TorchScript, 1.2-3x "
-                                "faster per call, the same bits) or eager (issue 29; pipeline/learning/step_runtime.py)",
+    learned_runtime: str = knob("kalman_net's and lstm_update's batched steps: script (traced to TorchScript, up to "
+                                "2.6x faster per call, the same bits) or eager (issue 29; pipeline/learning/"
+                                "step_runtime.py)",
                                 choices=LEARNED_RUNTIMES, default="script")
     device: str = knob("where kalman_net's and lstm_update's batched steps run: cpu, cuda or cuda:N (a CUDA device; "
                        "an error where torch sees none); issue 29, pipeline/learning/devices.py", default="cpu")

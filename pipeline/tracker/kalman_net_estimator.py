@@ -7,9 +7,10 @@ the update, `KalmanNetUpdate`) runs traced to TorchScript, the same numbers as e
 fraction of its dispatch, or eagerly (`tracker.learned_runtime`, `pipeline.learning.step_runtime`),
 on the CPU or a CUDA device (`tracker.device`, `pipeline.learning.devices`: the states, the memory
 and the network live there, numpy arrays come back from every role). Both sit in tensors by slot,
-as `pipeline.tracker.kalman.KalmanEstimator` keeps its filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
-network's `kalman_net.Memory` (hidden (S, H) and the increments' last values), and the scales the
-network gave at the track's last plot (q, and singer's manoeuvre scale) (S,).
+as `pipeline.tracker.kalman.KalmanEstimator` keeps its filters: the posterior state x (S, M, n),
+P (S, M, n, n), mu (S, M), the time it is at (S,), the network's `kalman_net.Memory` (hidden (S, H)
+and the increments' last values), and the scales the network gave at the track's last plot (q, and
+singer's manoeuvre scale) (S,).
 
 A step is `KalmanNet.step_scales` then the scaled filter step, exactly as in training
 (`torch_filters.filter_sequences`): the network reads the track's memory, its posterior and the
