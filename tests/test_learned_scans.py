@@ -95,29 +95,34 @@ def assert_same_updates(scan: dict[str, np.ndarray], plot_by_plot: dict[str, np.
         np.testing.assert_array_equal(values, plot_by_plot[column], err_msg=column)
 
 
+@pytest.mark.parametrize("runtime", ["script", "eager"])
 @pytest.mark.parametrize("method", ["kalman_net", "kalman_net_gnn"])
-def test_the_network_scaled_filter_steps_a_scan_as_plot_by_plot(params, plots, method, monkeypatch):
+def test_the_network_scaled_filter_steps_a_scan_as_plot_by_plot(params, plots, method, runtime, monkeypatch):
     """The network steps every (track, plot) pair of a scan, or of four plots ahead, in one call;
     the updates are those of one plot at a time, through both kinds of look-ahead plot (kept, scored
-    again)."""
-    model = scaling_network(params)
+    again); traced to TorchScript and eager (`tracker.learned_runtime`)."""
+    model, tracker_params = scaling_network(params), replace(params.tracker, learned_runtime=runtime)
     scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
-        lambda: registry.compose(method, Models({"kalman_net": model}), params.tracker, 4000.0, 0), plots, monkeypatch)
+        lambda: registry.compose(method, Models({"kalman_net": model}), tracker_params, 4000.0, 0), plots,
+        monkeypatch)
     assert (scan["association"] == method).sum() > 50
     if method == "kalman_net":
         assert True in verdicts and False in verdicts
     assert_same_updates(scan, plot_by_plot)
 
 
+@pytest.mark.parametrize("runtime", ["script", "eager"])
 @pytest.mark.parametrize("copies, floor_m", [(8, 1.0), (2, 1000.0)])
 def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot(params, plots, copies, floor_m,
-                                                                                  monkeypatch):
+                                                                                  runtime, monkeypatch):
     """Nearest neighbour's four plots ahead predicted in one call, and each track stepped with its MC-dropout
     masks drawn in the order of the updates: the updates of one plot at a time; with 2 copies a track's
     step runs on more rows than its own 3 (`batch_rows`; their spread is a line, so a floor of 1 km
-    makes the gate). Young tracks take what the window takes too (`tracker.lstm_update.young_window_fallback`)."""
+    makes the gate). Young tracks take what the window takes too (`tracker.lstm_update.young_window_fallback`).
+    Traced to TorchScript and eager (`tracker.learned_runtime`)."""
     fallback = replace(params.tracker.lstm_update, young_window_fallback=True)
-    model, tracker_params = lstm_update(copies, floor_m), replace(params.tracker, lstm_update=fallback)
+    model = lstm_update(copies, floor_m)
+    tracker_params = replace(params.tracker, lstm_update=fallback, learned_runtime=runtime)
     scan, plot_by_plot, verdicts = scan_and_plot_by_plot(
         lambda: registry.compose("lstm_update", Models({"lstm_update": model}), tracker_params, 4000.0, 0), plots,
         monkeypatch)

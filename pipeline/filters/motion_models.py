@@ -191,8 +191,8 @@ def singer_blocks(dt, alpha, variance, xp: ModuleType = np):
 
     `xp` is the array module, numpy or torch: the same arithmetic serves the NumPy reference and the
     differentiable torch filters (`pipeline.filters.torch_filters`), whose network scales alpha per step."""
-    def table(values: np.ndarray):
-        return xp.asarray(values, dtype=u.dtype)
+    def table(values: np.ndarray):  # on torch's side on the data's device
+        return xp.asarray(values, dtype=u.dtype) if xp is np else xp.asarray(values, dtype=u.dtype, device=u.device)
 
     u = alpha * dt
     small = u < SINGER_SERIES_BELOW

@@ -15,7 +15,9 @@ P (B, M, n, n) and mu (B, M). One step is `predicted` (`mixed`, then `moved` by 
 them. `filter_sequences` runs B padded sequences of T plots (the tuner's material,
 `tuning.target_sequences`), with optional per-step scales and truncated backpropagation through
 time. Everything is float64 unless the inputs say otherwise; times stay float64 whatever the
-working dtype (Unix seconds need it).
+working dtype (Unix seconds need it). The steps run on the device of their data (dt, z, the state:
+`tracker.device`, issue 29), the spec's values and the constant tables moved there as they are used
+(on the CPU, where the spec is, the moves are no-ops).
 """
 
 from __future__ import annotations
@@ -132,8 +134,8 @@ def _where(rows: Tensor, chosen: State, other: State) -> State:
 
 
 @lru_cache
-def _measurement_matrix(model: str, dtype: torch.dtype) -> Tensor:
-    return torch.as_tensor(motion_models.measurement_matrix(model), dtype=dtype)
+def _measurement_matrix(model: str, dtype: torch.dtype, device: torch.device) -> Tensor:
+    return torch.as_tensor(motion_models.measurement_matrix(model), dtype=dtype, device=device)
 
 
 def start(spec: FilterSpec, z: Tensor, R: Tensor) -> State:
@@ -142,13 +144,14 @@ def start(spec: FilterSpec, z: Tensor, R: Tensor) -> State:
     cv9 starts with none). `motion_models.initial_state`, differentiable: x = H' z, P = H' R H + D."""
     xs, Ps = [], []
     for model in spec.models:
-        H = _measurement_matrix(model, spec.dtype)
+        H = _measurement_matrix(model, spec.dtype, z.device)
         size = motion_models.DIMENSIONS[model]
         spread = [torch.zeros((), dtype=spec.dtype), spec.velocity_std_mps ** 2,
                   spec.acceleration_std_mps2 ** 2 * (model in ("ca", "singer"))][:size]
         xs.append(z @ H)
-        Ps.append(H.T @ R @ H + torch.diag(torch.stack(spread).repeat(3)))
-    return State(torch.stack(xs, 1), torch.stack(Ps, 1), spec.initial_probabilities().expand(len(z), -1))
+        Ps.append(H.T @ R @ H + torch.diag(torch.stack(spread).repeat(3).to(z.device)))
+    return State(torch.stack(xs, 1), torch.stack(Ps, 1),
+                 spec.initial_probabilities().to(z.device).expand(len(z), -1))
 
 
 # ----------------------------------------------------------------------------- motion
@@ -156,7 +159,7 @@ def start(spec: FilterSpec, z: Tensor, R: Tensor) -> State:
 def _per_axis(block: Tensor) -> Tensor:
     """The same (..., d, d) block on each of the three axes: (..., 3d, 3d) (`motion_models._per_axis`)."""
     d = block.shape[-1]
-    eye = torch.eye(3, dtype=block.dtype)
+    eye = torch.eye(3, dtype=block.dtype, device=block.device)
     return torch.einsum("ab,...ij->...aibj", eye, block).reshape(*block.shape[:-2], 3 * d, 3 * d)
 
 
@@ -173,11 +176,11 @@ _MONOMIALS = {
 
 
 @lru_cache
-def _monomial_tables(models: tuple[str, ...], dtype: torch.dtype) -> tuple[Tensor, ...]:
-    """Coefficients and powers of F, then of Q, on all three axes: four tensors (M, n, n)."""
+def _monomial_tables(models: tuple[str, ...], dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
+    """Coefficients and powers of F, then of Q, on all three axes: four tensors (M, n, n) on `device`."""
     tables = [[np.kron(np.eye(3), _MONOMIALS[model][matrix][part]) for model in models]
               for matrix in (0, 1) for part in (0, 1)]
-    return tuple(torch.tensor(np.array(table), dtype=dtype) for table in tables)
+    return tuple(torch.tensor(np.array(table), dtype=dtype, device=device) for table in tables)
 
 
 def motion(spec: FilterSpec, dt: Tensor, q_scale: Tensor | None = None, manoeuvre_scale: Tensor | None = None
@@ -193,15 +196,15 @@ def motion(spec: FilterSpec, dt: Tensor, q_scale: Tensor | None = None, manoeuvr
         raise ValueError(f"{spec.kind}: a manoeuvre scale only applies to singer")
     if spec.kind == "singer":
         alpha = (1.0 if manoeuvre_scale is None else manoeuvre_scale) / spec.manoeuvre_time_s * torch.ones_like(dt)
-        F, Q = motion_models.singer_blocks(dt, alpha, spec.noise_std[0] ** 2, torch)
+        F, Q = motion_models.singer_blocks(dt, alpha, spec.noise_std[0].to(dt.device) ** 2, torch)
         F, Q = _per_axis(F)[:, None], _per_axis(Q)[:, None]
     else:
-        F_coefficients, F_powers, Q_coefficients, Q_powers = _monomial_tables(spec.models, spec.dtype)
+        F_coefficients, F_powers, Q_coefficients, Q_powers = _monomial_tables(spec.models, spec.dtype, dt.device)
         dt = dt[:, None, None, None]
         F = F_coefficients * dt ** F_powers
-        Q = spec.noise_std[:, None, None] ** 2 * Q_coefficients * dt ** Q_powers
+        Q = spec.noise_std.to(dt.device)[:, None, None] ** 2 * Q_coefficients * dt ** Q_powers
     if q_scale is not None:
-        Q = Q * q_scale.reshape(len(dt), -1, 1, 1)
+        Q = Q * q_scale.reshape(dt.shape[0], -1, 1, 1)  # shape[0], not len(): traced as the batch size
     return F, Q
 
 
@@ -238,7 +241,7 @@ def predicted(spec: FilterSpec, state: State, F: Tensor, Q: Tensor) -> State:
 def inverse3(S: Tensor) -> tuple[Tensor, Tensor]:
     """Inverse (..., 3, 3) and determinant (...) of 3 x 3 matrices by cofactors (`batch_filters.inverse3`)."""
     flat = S.reshape(*S.shape[:-2], 9)
-    factors = flat[..., _COFACTOR_INDEX]                                            # (..., 4, 9)
+    factors = flat[..., _COFACTOR_INDEX.to(S.device)]                               # (..., 4, 9)
     cofactor = factors[..., 0, :] * factors[..., 1, :] - factors[..., 2, :] * factors[..., 3, :]
     determinant = (flat[..., :3] * cofactor[..., :3]).sum(-1)
     return cofactor.reshape(S.shape).transpose(-1, -2) / determinant[..., None, None], determinant

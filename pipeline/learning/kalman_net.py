@@ -137,11 +137,11 @@ class KalmanNet(nn.Module):
         self.register_buffer("amplitudes", torch.tensor([config.amplitude(n) for n in config.outputs], dtype=dtype))
 
     def memory(self, tracks: int) -> Memory:
-        """The memory of `tracks` tracks before their first plot."""
-        dtype = self.amplitudes.dtype
-        return Memory(torch.zeros(tracks, self.config.hidden, dtype=dtype), torch.zeros(tracks, 3, dtype=dtype),
-                      torch.zeros(tracks, 3, dtype=dtype), torch.zeros(tracks, dtype=dtype),
-                      torch.zeros(tracks, dtype=torch.long))
+        """The memory of `tracks` tracks before their first plot, on the model's device."""
+        like = dict(dtype=self.amplitudes.dtype, device=self.amplitudes.device)
+        return Memory(torch.zeros(tracks, self.config.hidden, **like), torch.zeros(tracks, 3, **like),
+                      torch.zeros(tracks, 3, **like), torch.zeros(tracks, **like),
+                      torch.zeros(tracks, dtype=torch.long, device=self.amplitudes.device))
 
     def features(self, memory: Memory, state: State, z: Tensor, R: Tensor, dt: Tensor) -> Tensor:
         """The network's input (B, 4) before the step with plot z (B, 3) of nominal covariance R (B, 3, 3)
@@ -159,7 +159,7 @@ class KalmanNet(nn.Module):
         innovation = z - position
         inverse, _ = torch_filters.inverse3(covariance + R)
         nis = (innovation[:, None, :] @ inverse @ innovation[:, :, None])[:, 0, 0]
-        zero = torch.zeros((), dtype=z.dtype)
+        zero = torch.zeros((), dtype=z.dtype, device=z.device)
         return torch.stack([torch.where(known, state_rate.norm(dim=-1) / v, zero),
                             torch.where(moving, plot_rate.norm(dim=-1) / v, zero),
                             torch.where(known, (plot_rate - state_rate).norm(dim=-1) / v, zero),

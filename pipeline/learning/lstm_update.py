@@ -197,12 +197,13 @@ class LSTMUpdate(nn.Module):
 
     def started(self, z: Tensor, samples: int) -> Ensemble:
         """`samples` copies of tracks started at plots z (B, 3): at the plot, velocities
-        `start_velocities` (the copies' prior, as an ensemble Kalman filter draws one), memory empty."""
-        x = torch.zeros(len(z), samples, STATES, dtype=self.dtype)
+        `start_velocities` (the copies' prior, as an ensemble Kalman filter draws one), memory empty;
+        on z's device."""
+        x = torch.zeros(len(z), samples, STATES, dtype=self.dtype, device=z.device)
         x[..., ::3] = z[:, None]
-        x[..., 1::3] = self.start_velocities(samples)
-        memory = torch.zeros(len(z), samples, self.config.hidden, dtype=self.dtype)
-        return Ensemble(x, memory, memory, torch.ones(len(z), dtype=torch.long))
+        x[..., 1::3] = self.start_velocities(samples).to(z.device)
+        memory = torch.zeros(len(z), samples, self.config.hidden, dtype=self.dtype, device=z.device)
+        return Ensemble(x, memory, memory, torch.ones(len(z), dtype=torch.long, device=z.device))
 
     def predicted(self, x: Tensor, dt: Tensor) -> Tensor:
         """x~ = F x (B, N, 9) over dt (B,) s, the previous estimate cut from the graph if
@@ -279,7 +280,7 @@ class LSTMUpdate(nn.Module):
         return centre, factor[:, None, None] * covariance + self._floor()
 
     def _floor(self) -> Tensor:
-        return self.config.floor_m ** 2 * torch.eye(3, dtype=self.dtype)
+        return self.config.floor_m ** 2 * torch.eye(3, dtype=self.dtype, device=self.output.weight.device)
 
     def ensemble(self) -> tuple[int, bool]:
         """How many copies of a track run and whether their dropout masks are on: in training one

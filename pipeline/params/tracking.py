@@ -14,6 +14,8 @@ from pipeline.params.world import Aircraft, Radar, Routes, Scenes, Windows, spli
 
 MAX_CONFIRM_N = 52  # an M-of-N track's last confirm_n opportunities are the bits of its weight (a double's 53)
 SITE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # a site's name labels report rows and keys
+DEVICE = re.compile(r"cpu|cuda(:[0-9]+)?")  # tracker.device: torch's names of the CPU and of CUDA devices
+LEARNED_RUNTIMES = ("script", "eager")  # tracker.learned_runtime (pipeline/learning/step_runtime.py)
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,8 @@ class TrackerParams(Section):
     grouped by the component that reads them (as Stone Soup keeps knobs on their components)."""
 
     seed: int = knob("MIA sampling", 0)
-    inference: str = knob("onnx (ONNX Runtime, ~5x faster per call) or torch; same outputs", choices=("onnx", "torch"))
+    inference: str = knob("the thesis networks: onnx (ONNX Runtime, ~5x faster per call) or torch; same outputs",
+                          choices=("onnx", "torch"))
     refusal_warning_share: float = knob("`track` warns when a learned gate refused this share of the plots within "
                                         "window_m of a track it scored", 0.0, 1.0, open_low=True)
     management: Management = knob("the track management rules")
@@ -109,6 +112,17 @@ class TrackerParams(Section):
     networks: Networks = knob("the thesis networks' tracker")
     mia: MIA = knob("the MIA method's gate")
     lstm_update: LSTMUpdateGate = knob("the lstm_update method's gate")
+    learned_runtime: str = knob("kalman_net's and lstm_update's batched steps: script (traced to TorchScript, up to "
+                                "2.6x faster per call, the same bits) or eager (issue 29; pipeline/learning/"
+                                "step_runtime.py)",
+                                choices=LEARNED_RUNTIMES, default="script")
+    device: str = knob("where kalman_net's and lstm_update's batched steps run: cpu, cuda or cuda:N (a CUDA device; "
+                       "an error where torch sees none); issue 29, pipeline/learning/devices.py", default="cpu")
+
+    def check(self, path: str, context: Mapping[str, Any]) -> TrackerParams:
+        if not DEVICE.fullmatch(self.device):
+            raise ParamError(f"{path}.device = {self.device!r}: must be cpu, cuda or cuda:N")
+        return self
 
 
 @dataclass(frozen=True)

@@ -2,10 +2,15 @@
 
 Every live track runs the trained model's base filter (cv, ca or singer) in PyTorch
 (`pipeline.filters.torch_filters`, float64, no gradients), with the network's recurrent memory kept
-beside it; both sit in tensors by slot, as `pipeline.tracker.kalman.KalmanEstimator` keeps its
-filters: the posterior state x (S, M, n), P (S, M, n, n), mu (S, M), the time it is at (S,), the
-network's `kalman_net.Memory` (hidden (S, H) and the increments' last values), and the scales the
-network gave at the track's last plot (q, and singer's manoeuvre scale) (S,).
+beside it. A batched step (the network's scales with the prediction, `step_runtime.KalmanNetPlotStep`;
+the update, `KalmanNetUpdate`) runs traced to TorchScript, the same numbers as eager PyTorch in a
+fraction of its dispatch, or eagerly (`tracker.learned_runtime`, `pipeline.learning.step_runtime`),
+on the CPU or a CUDA device (`tracker.device`, `pipeline.learning.devices`: the states, the memory
+and the network live there, numpy arrays come back from every role). Both sit in tensors by slot,
+as `pipeline.tracker.kalman.KalmanEstimator` keeps its filters: the posterior state x (S, M, n),
+P (S, M, n, n), mu (S, M), the time it is at (S,), the network's `kalman_net.Memory` (hidden (S, H)
+and the increments' last values), and the scales the network gave at the track's last plot (q, and
+singer's manoeuvre scale) (S,).
 
 A step is `KalmanNet.step_scales` then the scaled filter step, exactly as in training
 (`torch_filters.filter_sequences`): the network reads the track's memory, its posterior and the
@@ -27,12 +32,14 @@ network gave at its previous plot (`predict`, the protocol's prediction without 
 against 211 m, ROCA 0.978 against 0.968. The covariance `update` returns is the scaled filter's
 posterior, which the consistency metrics (ANEES) read.
 
-A pair's numbers do not depend on the pairs stepped with it: the network runs on rows padded as
-`pipeline.learning.batch_rows` says (MKL's matrix products and torch's sigmoid otherwise give a row
-of a small call other last bits), and the filter's own steps are elementwise or 3 x 3 to 9 x 9
-products, each the same alone as in a batch. So a scan stepped at once gives the updates of
-stepping it plot by plot, to the bit (`tests/test_kalman_net_tracker.py`); since the padding (issue
-29) a plot's rows differ from the unpadded per-plot calls before it in the last bits.
+A pair's numbers do not depend on the pairs stepped with it: the network (and the prediction with
+its scales, in the same call) runs on rows padded as `pipeline.learning.batch_rows` says (MKL's
+matrix products and torch's sigmoid otherwise give a row of a small call other last bits), and the
+filter's own steps are elementwise or 3 x 3 to 9 x 9 products, each the same alone as in a batch.
+So a scan stepped at once gives the updates of stepping it plot by plot, to the bit
+(`tests/test_learned_scans.py`, both runtimes); since the padding (issue 29) a plot's rows differ
+from the unpadded per-plot calls before it in the last bits. TorchScript runs the same kernels:
+the tracks are those of eager PyTorch, to the bit.
 """
 
 from __future__ import annotations
@@ -45,8 +52,8 @@ import torch
 from torch import Tensor
 
 from pipeline.filters import motion_models, torch_filters
-from pipeline.filters.torch_filters import State, Step, StepScales
-from pipeline.learning import batch_rows
+from pipeline.filters.torch_filters import State, StepScales
+from pipeline.learning import batch_rows, devices, step_runtime
 from pipeline.learning.kalman_net import KalmanNet, Memory
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import ChiSquareGate, Scores
@@ -60,25 +67,41 @@ class KalmanNetEstimator:
     pairwise = True
     latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
-    def __init__(self, model: KalmanNet, capacity: int = 64) -> None:
-        self.model, self.spec = model, model.base
+    def __init__(self, model: KalmanNet, capacity: int = 64, runtime: str = "script", device: str = "cpu") -> None:
+        self.device = devices.resolve(device)
+        self.model = model = devices.placed(model, self.device)
+        self.spec = model.base
         self.r0_scale = model.config.r0_scale
         self.singer = model.config.base == "singer"
         models, size = len(self.spec.models), motion_models.state_size(self.spec.models[0])
-        dtype = self.spec.dtype
-        self.x = torch.zeros((capacity, models, size), dtype=dtype)
-        self.P = torch.zeros((capacity, models, size, size), dtype=dtype)
-        self.mu = torch.ones((capacity, models), dtype=dtype)
-        self.q = torch.ones(capacity, dtype=dtype)
-        self.manoeuvre = torch.ones(capacity, dtype=dtype)
+        like = dict(dtype=self.spec.dtype, device=self.device)
+        self.x = torch.zeros((capacity, models, size), **like)
+        self.P = torch.zeros((capacity, models, size, size), **like)
+        self.mu = torch.ones((capacity, models), **like)
+        self.q = torch.ones(capacity, **like)
+        self.manoeuvre = torch.ones(capacity, **like)
         self.memory = model.memory(capacity)
         self.time = np.full(capacity, np.nan)  # NaN: the slot's filter is not started
+        self._plot_step = step_runtime.traced(model, step_runtime.KalmanNetPlotStep, runtime, self._example)
+        self._update = step_runtime.traced(model, step_runtime.KalmanNetUpdate, runtime,
+                                           lambda rows: (*self._example(rows)[:3], *self._example(rows)[8:10]))
+
+    def _example(self, rows: int) -> tuple[Tensor, ...]:
+        """Inputs of `rows` tracks' plot step (`step_runtime.KalmanNetPlotStep`) to trace it with: started
+        tracks, their memory, plots 1 km on after 4 s."""
+        z = torch.full((rows, 3), 6.4e6, dtype=self.spec.dtype, device=self.device)
+        R0 = torch.eye(3, dtype=self.spec.dtype, device=self.device).expand(rows, 3, 3) * 1e4
+        state, memory = torch_filters.start(self.spec, z, R0), self.model.memory(rows)
+        moving = torch.ones(rows, dtype=torch.bool, device=self.device)
+        return (state.x, state.P, state.mu, memory.hidden, memory.estimate, memory.measurement, memory.dt, memory.age,
+                z + 1e3, R0, torch.full((rows,), 4.0, dtype=torch.float64, device=self.device), ~moving, moving)
 
     def _grow(self, capacity: int) -> None:
         extra = capacity - len(self.time)
 
         def grown(values: Tensor, fill: float = 0.0) -> Tensor:
-            return torch.cat([values, torch.full((extra, *values.shape[1:]), fill, dtype=values.dtype)])
+            return torch.cat([values, torch.full((extra, *values.shape[1:]), fill, dtype=values.dtype,
+                                                 device=values.device)])
         self.x, self.P, self.mu = grown(self.x), grown(self.P), grown(self.mu, 1.0)
         self.q, self.manoeuvre = grown(self.q, 1.0), grown(self.manoeuvre, 1.0)
         self.memory = Memory(**{f.name: grown(getattr(self.memory, f.name)) for f in fields(Memory)})
@@ -90,12 +113,16 @@ class KalmanNetEstimator:
             self._grow(len(tracks.tracks))
         self.time[slot] = np.nan
 
+    def _index(self, rows: np.ndarray) -> Tensor:
+        """Indices (numpy) as a tensor on the device."""
+        return torch.from_numpy(np.ascontiguousarray(rows)).to(self.device)
+
     def _state(self, slots: np.ndarray) -> State:
-        index = torch.from_numpy(slots)
+        index = self._index(slots)
         return State(self.x[index], self.P[index], self.mu[index])
 
     def _store(self, slots: np.ndarray, state: State, scales: StepScales, memory: Memory, time: np.ndarray) -> None:
-        index = torch.from_numpy(slots)
+        index = self._index(slots)
         self.x[index], self.P[index], self.mu[index] = state.x, state.P, state.mu
         self.q[index] = scales.q
         if self.singer:
@@ -107,25 +134,29 @@ class KalmanNetEstimator:
     def _measured(self, tracks: LiveTracks, rows: list[int] | np.ndarray) -> tuple[Tensor, Tensor]:
         """The plots' positions z (K, 3) m and R0 = their covariances x r0_scale (K, 3, 3) m^2."""
         plots = tracks.plots
-        return (torch.as_tensor(plots.position[rows], dtype=self.spec.dtype),
-                torch.as_tensor(plots.covariance[rows], dtype=self.spec.dtype) * self.r0_scale)
+        return (torch.as_tensor(plots.position[rows], dtype=self.spec.dtype, device=self.device),
+                torch.as_tensor(plots.covariance[rows], dtype=self.spec.dtype, device=self.device) * self.r0_scale)
 
     def _network(self, slots: np.ndarray, before: State, z: Tensor, R0: Tensor, dt: Tensor, fresh: bool
-                 ) -> tuple[StepScales, Memory]:
+                 ) -> tuple[StepScales, Memory, State]:
         """The network's scales for the step of the tracks at `slots` (K,) from posterior `before` to plots
         z (K, 3) of nominal covariance R0 (K, 3, 3) after dt (K,) s, the track's first step if `fresh`,
-        and its memory after the step (`KalmanNet.step_scales`; the stored memory is left unchanged). Run
-        on the rows of `batch_rows.padding` (the scales, sigmoids, a row apiece), so that a row's numbers
-        are those of any other call."""
+        its memory after the step (`KalmanNet.step_scales`; the stored memory is left unchanged) and
+        the prior predicted with the scales (`step_runtime.KalmanNetPlotStep`). Run on the rows of
+        `batch_rows.padding` (the scales, sigmoids, a row apiece), so that a row's numbers are those of
+        any other call."""
         count = len(slots)
         rows = batch_rows.padding(count, elements_each=len(self.model.config.outputs))
-        at = torch.from_numpy(rows)
-        flags = torch.full((len(rows),), fresh), torch.full((len(rows),), not fresh)
-        scales, memory = self.model.step_scales(_rows(self.memory, torch.from_numpy(slots[rows])),
-                                                Step(0, State(before.x[at], before.P[at], before.mu[at]), z[at],
-                                                     R0[at], dt[at]), *flags)
-        return (StepScales(*(None if value is None else value[:count]
-                             for value in (scales.q, scales.r, scales.manoeuvre))), _rows(memory, slice(0, count)))
+        at = self._index(rows)
+        memory = _rows(self.memory, self._index(slots[rows]))
+        flags = (torch.full((len(rows),), fresh, device=self.device),
+                 torch.full((len(rows),), not fresh, device=self.device))
+        scales, *after, x, P, mu = self._plot_step(before.x[at], before.P[at], before.mu[at],
+                                                   *(getattr(memory, f.name) for f in fields(Memory)), z[at], R0[at],
+                                                   dt[at], *flags)
+        named = dict(zip(self.model.config.outputs, scales[:count].unbind(1)))
+        return (StepScales(named["q"], named["r"], named.get("manoeuvre")),
+                Memory(*(value[:count] for value in after)), State(x[:count], P[:count], mu[:count]))
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots` not started yet at their first plots, with the
@@ -136,8 +167,9 @@ class KalmanNetEstimator:
         rows = [tracks.tracks[slot].rows[0] for slot in fresh]
         z, R0 = self._measured(tracks, rows)
         with torch.no_grad():
-            scales, memory = self._network(fresh, torch_filters.start(self.spec, z, R0), z, R0,
-                                           torch.zeros(len(fresh), dtype=torch.float64), fresh=True)
+            scales, memory, _ = self._network(fresh, torch_filters.start(self.spec, z, R0), z, R0,
+                                              torch.zeros(len(fresh), dtype=torch.float64, device=self.device),
+                                              fresh=True)
             started = torch_filters.start(self.spec, z, R0 * scales.r[:, None, None])
         self._store(fresh, started, scales, memory, tracks.plots.time[rows])
 
@@ -146,13 +178,13 @@ class KalmanNetEstimator:
         networks gave at their last plots, unchanged: positions (K, 3) and covariances (K, 3, 3), no
         state (no plot: no network step)."""
         self._start_filters(tracks, slots)
-        index = torch.from_numpy(slots)
-        dt = torch.as_tensor(time - self.time[slots], dtype=torch.float64)
+        index = self._index(slots)
+        dt = torch.as_tensor(time - self.time[slots], dtype=torch.float64, device=self.device)
         with torch.no_grad():
             motion = torch_filters.motion(self.spec, dt, self.q[index], self.manoeuvre[index] if self.singer else None)
             position, covariance = torch_filters.position_estimates(
                 torch_filters.predicted(self.spec, self._state(slots), *motion))
-        return Prediction(position.numpy(), covariance.numpy())
+        return Prediction(position.cpu().numpy(), covariance.cpu().numpy())
 
     def predict_plot(self, tracks: LiveTracks, slots: np.ndarray, row: int | np.ndarray) -> Prediction:
         """The tracks at `slots` (K,) stepped towards plot `row` (one, or one per track: `pairwise`) in
@@ -163,16 +195,13 @@ class KalmanNetEstimator:
         self._start_filters(tracks, slots)
         rows = np.broadcast_to(row, slots.shape)
         z, R0 = self._measured(tracks, rows)
-        dt = torch.as_tensor(tracks.plots.time[rows] - self.time[slots], dtype=torch.float64)
+        dt = torch.as_tensor(tracks.plots.time[rows] - self.time[slots], dtype=torch.float64, device=self.device)
         with torch.no_grad():
-            before = self._state(slots)
-            scales, memory = self._network(slots, before, z, R0, dt, fresh=False)
-            prior = torch_filters.predicted(self.spec, before, *torch_filters.motion(self.spec, dt, scales.q,
-                                                                                     scales.manoeuvre))
+            scales, memory, prior = self._network(slots, self._state(slots), z, R0, dt, fresh=False)
             R = R0 * scales.r[:, None, None]
             position, covariance = torch_filters.position_estimates(prior)
-        extra = R.numpy() - tracks.plots.covariance[rows]
-        return Prediction(position.numpy(), covariance.numpy() + extra, PlotStep(prior, R, scales, memory))
+        extra = R.cpu().numpy() - tracks.plots.covariance[rows]
+        return Prediction(position.cpu().numpy(), covariance.cpu().numpy() + extra, PlotStep(prior, R, scales, memory))
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -190,16 +219,15 @@ class KalmanNetEstimator:
         of `rows` (P,) from row `indices` (P,) of a `predict_plot` step: the new positions (P, 3) and
         covariances (P, 3, 3)."""
         step: PlotStep = prediction.state
-        at = torch.from_numpy(np.asarray(indices))
+        at = self._index(np.asarray(indices))
         z, _ = self._measured(tracks, rows)
         with torch.no_grad():
-            posterior = torch_filters.updated(self.spec, State(step.prior.x[at], step.prior.P[at], step.prior.mu[at]),
-                                              z, step.R[at])
+            x, P, mu, position, covariance = self._update(step.prior.x[at], step.prior.P[at], step.prior.mu[at], z,
+                                                          step.R[at])
         scales = StepScales(*(None if value is None else value[at] for value in
                               (step.scales.q, step.scales.r, step.scales.manoeuvre)))
-        self._store(slots, posterior, scales, _rows(step.memory, at), tracks.plots.time[rows])
-        position, covariance = torch_filters.position_estimates(posterior)
-        return position.numpy(), covariance.numpy()
+        self._store(slots, State(x, P, mu), scales, _rows(step.memory, at), tracks.plots.time[rows])
+        return position.cpu().numpy(), covariance.cpu().numpy()
 
 
 def _rows(memory: Memory, index: Tensor | slice) -> Memory:

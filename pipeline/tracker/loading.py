@@ -36,8 +36,13 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
     """What `methods` (registered names) need from `models_dir`, checked against params, loaded in the
     order of `PIECES`.
 
-    Raises registry.UnknownMethod for a name not registered, io.InputError for a missing or bad file."""
+    Raises registry.UnknownMethod for a name not registered, io.InputError for a missing or bad file,
+    ParamError for a `tracker.device` this machine lacks when a method runs kalman_net or lstm_update."""
     needed = registry.needs(methods)
+    if needed & {registry.KALMAN_NET, registry.LSTM_UPDATE}:
+        from pipeline.learning import devices
+
+        devices.resolve(params.tracker.device)  # ParamError before any file is read when the device is not here
     paths = {piece: _path(models_dir, piece, methods) for piece in sorted(needed)}
     if any(PIECES[piece].network for piece in needed):
         import torch

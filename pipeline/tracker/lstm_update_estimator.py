@@ -12,6 +12,11 @@ with the plot and its measurement covariance, and gives the point estimate and i
 covariance (`LSTMUpdate.estimate_covariance`: the copies' spread and the plot's covariance). Works in ECEF metres, seconds, like every estimator. The MC copies' dropout masks come
 from the estimator's own generator, seeded from the run's seed (the scenario's), so a scenario's
 tracks do not depend on what ran before it in the process (torch's global generator is left as it was).
+The prediction (`step_runtime.LSTMPredict`) and the LSTM step with its calibrated covariance
+(`step_runtime.LSTMStep`) run traced to TorchScript, the same numbers as eager PyTorch in a fraction
+of its dispatch, or eagerly (`tracker.learned_runtime`), on the CPU or a CUDA device (`tracker.device`,
+`pipeline.learning.devices`: the ensembles and the network live there, the masks are drawn on the CPU
+and moved, numpy arrays come back from every role).
 
 The estimator is `pairwise`: `predict` moves the tracks of a whole scan's (track, plot) pairs (or
 of nearest neighbour's look-ahead) in one call, each to its own plot's time, and `update_pairs`
@@ -32,8 +37,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from pipeline.learning import batch_rows
-from pipeline.learning.lstm_update import Ensemble, LSTMUpdate
+from pipeline.learning import batch_rows, devices, step_runtime
+from pipeline.learning.lstm_update import FEATURES, Ensemble, LSTMUpdate
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 
@@ -56,17 +61,37 @@ class LSTMUpdateEstimator:
     pairwise = True
     latest_plots = 0  # a track's first plot starts its ensemble; the ensemble keeps the rest
 
-    def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64) -> None:
-        self.model = model.eval()
+    def __init__(self, model: LSTMUpdate, seed: int | list[int], capacity: int = 64, runtime: str = "script",
+                 device: str = "cpu") -> None:
+        self.device = devices.resolve(device)
+        self.model = model = devices.placed(model.eval(), self.device)
         self.generator = torch.Generator().manual_seed(
-            int(np.random.SeedSequence(seed).generate_state(1)[0]))  # the dropout masks'
+            int(np.random.SeedSequence(seed).generate_state(1)[0]))  # the dropout masks', drawn on the CPU
         self.samples, self.sample = model.ensemble()
         self.dtype = model.dtype
-        self.ensemble = Ensemble(*(torch.zeros(capacity, self.samples, size, dtype=self.dtype)
+        self.ensemble = Ensemble(*(torch.zeros(capacity, self.samples, size, dtype=self.dtype, device=self.device)
                                    for size in (9, model.config.hidden, model.config.hidden)),
-                                 torch.zeros(capacity, dtype=torch.long))
+                                 torch.zeros(capacity, dtype=torch.long, device=self.device))
         self.time = np.zeros(capacity)
         self.started = np.zeros(capacity, dtype=bool)
+        self._predict = step_runtime.traced(model, step_runtime.LSTMPredict, runtime,
+                                            lambda rows: self._example(rows)[0])
+        self._step = step_runtime.traced(model, step_runtime.LSTMStep if self.sample else step_runtime.LSTMStepUnmasked,
+                                         runtime, lambda rows: self._example(rows)[1])
+
+    def _tensor(self, values: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(values, dtype=self.dtype, device=self.device)
+
+    def _example(self, rows: int) -> tuple[tuple[torch.Tensor, ...], tuple[torch.Tensor, ...]]:
+        """Inputs of `rows` tracks' prediction and LSTM step (`step_runtime.LSTMPredict`, `LSTMStep`) to trace
+        them with: tracks started at a plot, the next plots 1 km on after 4 s, masks of ones."""
+        z = self._tensor(np.full((rows, 3), 6.4e6))
+        ensemble, dt = self.model.started(z, self.samples), self._tensor(np.full(rows, 4.0))
+        R = self._tensor(np.repeat(np.eye(3)[None] * 1e4, rows, 0))
+        masks = torch.ones(rows, self.samples, FEATURES + self.model.config.hidden, dtype=self.dtype,
+                           device=self.device)
+        return ((ensemble.x, ensemble.age, dt),
+                (*_parts(ensemble), z + 1e3, R, dt) + (masks,) * self.sample)
 
     def start(self, tracks: LiveTracks, slot: int) -> None:
         if slot >= len(self.time):
@@ -78,7 +103,7 @@ class LSTMUpdateEstimator:
         self.started[slot] = False
 
     def _store(self, slots: np.ndarray, ensemble: Ensemble, time: np.ndarray | float) -> None:
-        index = torch.as_tensor(slots)
+        index = torch.as_tensor(slots, device=self.device)
         for part, value in zip(_parts(self.ensemble), _parts(ensemble)):
             part[index] = value
         self.time[slots] = time
@@ -88,7 +113,7 @@ class LSTMUpdateEstimator:
         fresh = np.unique(slots[~self.started[slots]])  # a scan's pairs hold a track once per plot
         if len(fresh):
             rows = [tracks.tracks[slot].rows[0] for slot in fresh]
-            z = torch.as_tensor(tracks.plots.position[rows], dtype=self.dtype)
+            z = self._tensor(tracks.plots.position[rows])
             self._store(fresh, self.model.started(z, self.samples), tracks.plots.time[rows])
             self.started[fresh] = True
 
@@ -97,13 +122,12 @@ class LSTMUpdateEstimator:
         positions (K, 3), calibrated covariances (K, 3, 3), and the ensembles with their time steps as
         the state (`Moved`)."""
         self._start_ensembles(tracks, slots)
-        index = torch.as_tensor(slots)
+        index = torch.as_tensor(slots, device=self.device)
         ensemble = Ensemble(*(part[index] for part in _parts(self.ensemble)))
-        dt = torch.as_tensor(time - self.time[slots], dtype=self.dtype)
+        dt = self._tensor(time - self.time[slots])
         with torch.no_grad():
-            position, covariance = self.model.prediction_covariance(self.model.predicted(ensemble.x, dt)[..., ::3],
-                                                                     ensemble.age, dt)
-        return Prediction(position.numpy(), covariance.numpy(), Moved(ensemble, dt))
+            position, covariance = self._predict(ensemble.x, ensemble.age, dt)
+        return Prediction(position.cpu().numpy(), covariance.cpu().numpy(), Moved(ensemble, dt))
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -125,16 +149,14 @@ class LSTMUpdateEstimator:
         plots, count = tracks.plots, len(slots)
         moved = prediction.state
         padded = batch_rows.padding(count, self.samples)
-        at = torch.as_tensor(np.asarray(indices)[padded])
-        z = torch.as_tensor(plots.position[rows[padded]], dtype=self.dtype)
-        R = torch.as_tensor(plots.covariance[rows[padded]], dtype=self.dtype)
-        masks = None
+        at = torch.as_tensor(np.asarray(indices)[padded], device=self.device)
+        z, R = self._tensor(plots.position[rows[padded]]), self._tensor(plots.covariance[rows[padded]])
+        masks = ()
         if self.sample:
             drawn = [self.model.dropout_masks(self.samples, self.generator) for _ in range(count)]
-            masks = torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count))
+            masks = (torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count)).to(self.device),)
         with torch.no_grad():
-            after, _ = self.model.step(Ensemble(*(part[at] for part in _parts(moved.ensemble))), z, R, moved.dt[at],
-                                       self.sample, masks)
-            position, covariance = self.model.estimate_covariance(after.x[..., ::3], after.age, R)
-        self._store(slots, Ensemble(*(part[:count] for part in _parts(after))), plots.time[rows])
-        return position[:count].numpy(), covariance[:count].numpy()
+            *after, position, covariance = self._step(*(part[at] for part in _parts(moved.ensemble)), z, R,
+                                                      moved.dt[at], *masks)
+        self._store(slots, Ensemble(*(part[:count] for part in after)), plots.time[rows])
+        return position[:count].cpu().numpy(), covariance[:count].cpu().numpy()

@@ -149,7 +149,8 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     gate = BoundedChiSquareGate(params.association.kalman_gate_probability,
                                 params.lstm_update.gate_m)
     young_gate = RadiusFloorGate(gate, window_m) if params.lstm_update.young_window_fallback else gate
-    return _composition("lstm_update", LSTMUpdateEstimator(models[LSTM_UPDATE], seed), gate,
+    estimator = LSTMUpdateEstimator(models[LSTM_UPDATE], seed, runtime=params.learned_runtime, device=params.device)
+    return _composition("lstm_update", estimator, gate,
                         params.association.young_track_plots, window_m, params, young_gate=young_gate,
                         learned=(True, True))
 
@@ -159,7 +160,7 @@ def _kalman_net(name: str, global_nearest: bool):
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
-        estimator = KalmanNetEstimator(models[KALMAN_NET])
+        estimator = KalmanNetEstimator(models[KALMAN_NET], runtime=params.learned_runtime, device=params.device)
         return _composition(name, estimator, PlotScaledGate(estimator, params.association.kalman_gate_probability),
                             params.association.young_track_plots, window_m, params,
                             assigner=GlobalNearestPerScan() if global_nearest else None, learned=(False, True))
