@@ -38,6 +38,7 @@ from pipeline.filters.torch_filters import State, Step
 from pipeline.learning import batch_rows
 from pipeline.learning.kalman_net import KalmanNet, KalmanNetConfig, Memory
 from pipeline.learning.lstm_update import Ensemble, LSTMUpdate, LSTMUpdateConfig
+from pipeline.learning.step_runtime import LSTMStep
 from pipeline.sections import subset
 from pipeline.settings import load_params
 
@@ -69,21 +70,6 @@ class KalmanNetStep(nn.Module):
         prior = torch_filters.predicted(spec, state, *torch_filters.motion(spec, dt, q))
         posterior = torch_filters.updated(spec, prior, z, R0 * r[:, None, None])
         return posterior.x, posterior.P, q, r, memory.hidden if self.network is None else hidden
-
-
-class LSTMStep(nn.Module):
-    """`LSTMUpdate.step` (masks given) and `estimate_covariance` of B tracks' N copies:
-    (x, h, c, age, z, R, dt, masks) -> (x, h, c, position, covariance)."""
-
-    def __init__(self, model: LSTMUpdate) -> None:
-        super().__init__()
-        self.model = model
-
-    def forward(self, x: Tensor, h: Tensor, c: Tensor, age: Tensor, z: Tensor, R: Tensor, dt: Tensor, masks: Tensor
-                ) -> tuple[Tensor, ...]:
-        after, _ = self.model.step(Ensemble(x, h, c, age), z, R, dt, True, masks)
-        position, covariance = self.model.estimate_covariance(after.x[..., ::3], after.age, R)
-        return after.x, after.h, after.c, position, covariance
 
 
 class LSTMNetwork(nn.Module):
@@ -121,7 +107,7 @@ class LSTMStepOnnx(nn.Module):
         correction = (frame.transpose(-1, -2) @ out.reshape(B, N, 3, 3)).reshape(B, N, 9)
         x = prior + correction
         position, covariance = model.estimate_covariance(x[..., ::3], age + 1, R)
-        return x, h.reshape(B, N, -1), c.reshape(B, N, -1), position, covariance
+        return x, h.reshape(B, N, -1), c.reshape(B, N, -1), age + 1, position, covariance
 
 
 def session(network: nn.Module, example: tuple[Tensor, ...], names: list[str], outputs: list[str]):
