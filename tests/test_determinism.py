@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -128,3 +129,46 @@ def test_strict_math_domain_errors() -> None:
     assert np.isnan(strict_math.sin(np.array([np.nan, np.inf]))).all()
     assert np.array_equal(strict_math.log(np.array([0.0, np.inf])), [-np.inf, np.inf])
     assert np.isnan(strict_math.log(np.array([-1.0]))).all() and np.isnan(strict_math.asin(np.array([1.5]))).all()
+
+
+# MKL as on a processor without AVX-512 (MKL's own cap on the instructions it uses): what the
+# trainings of an AVX2 machine compute, unless the package pins MKL's code path (pipeline/__init__.py).
+LESSER_MKL = {"MKL_ENABLE_INSTRUCTIONS": "AVX2"}
+TRAININGS = (("train", "--kind", "filter", "--windows", "data/windows"),  # float32 GRU: MKL, oneDNN, ATen
+             ("train-kalman-net", "--simulated", "data/simulated", "--windows", "data/windows"))  # float64, Adam
+
+
+def trained_files(tiny: Path, folder: Path, extra_environment: dict[str, str]) -> dict[str, bytes]:
+    """The model files the tiny pipeline's filter and network-scaled filter trainings write into `folder`."""
+    (folder / "models").mkdir(parents=True)
+    (folder / "models" / "kalman_tuned.json").write_bytes((tiny / "models" / "kalman_tuned.json").read_bytes())
+    for arguments in TRAININGS:
+        result = subprocess.run(
+            [sys.executable, "-m", "pipeline", "-q", *arguments, "--params", "params.yaml",
+             "--models", str(folder / "models"), "--reports", str(folder / "reports")], cwd=tiny,
+            env={**environment(), **extra_environment, "MLFLOW_TRACKING_URI": f"sqlite:///{folder / 'mlflow.db'}"},
+            capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+    return {path.name: path.read_bytes() for path in sorted((folder / "models").iterdir())}
+
+
+def test_trainings_write_the_same_bytes_with_mkls_avx2_kernels(tiny_pipeline: Path, tmp_path: Path) -> None:
+    """A training gives the same model on an AVX2 processor as on an AVX-512 one: MKL capped at AVX2
+    changed every model's bytes before the package pinned the kernels (all six tiny trainings). On a
+    processor without AVX-512 the two runs are alike anyway."""
+    this = trained_files(tiny_pipeline, tmp_path / "this", {})
+    lesser = trained_files(tiny_pipeline, tmp_path / "lesser", LESSER_MKL)
+    assert {"filter.pt", "kalman_net.pt", "kalman_gradient.json"} <= set(this)
+    for name, content in this.items():
+        assert content == lesser[name], f"{name} differs with MKL's AVX2 kernels"
+
+
+@pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="kernels are pinned on x86-64 only")
+def test_importing_the_package_pins_the_kernels_and_keeps_the_users_choice() -> None:
+    script = "import os, pipeline; print(os.environ['ATEN_CPU_CAPABILITY'], os.environ['MKL_CBWR'])"
+    pinned = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            env={k: v for k, v in environment().items() if k not in ("ATEN_CPU_CAPABILITY", "MKL_CBWR")})
+    chosen = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            env={**environment(), "ATEN_CPU_CAPABILITY": "avx512"})
+    assert pinned.stdout.split() == ["avx2", "AVX2,STRICT"]
+    assert chosen.stdout.split()[0] == "avx512"

@@ -51,6 +51,13 @@ def module_file(module: str) -> str | None:
     return (path / "__init__.py").as_posix()
 
 
+def parents(module: str) -> list[str]:
+    """The packages Python imports before `module` ("pipeline", "pipeline.tracker" for
+    "pipeline.tracker.run"): their `__init__.py` runs first (the package's pins the kernels)."""
+    parts = module.split(".")
+    return [".".join(parts[:n]) for n in range(1, len(parts))]
+
+
 def stage_code_deps(stages: dict, cli_source: str) -> dict[str, list[str]]:
     """Stage name -> the sorted files of the package its command runs (module docstring)."""
     sys.path.insert(0, str(REPOSITORY))
@@ -63,6 +70,7 @@ def stage_code_deps(stages: dict, cli_source: str) -> dict[str, list[str]]:
         modules: set[str] = set()
         for entry in handlers[command]:
             modules |= {entry, *graph.find_upstream_modules(entry)}
+        modules |= {parent for module in modules for parent in parents(module)}  # Python runs them first
         deps[name] = sorted({f for f in map(module_file, modules) if f})
     return deps
 
