@@ -21,6 +21,7 @@ import mlflow
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from pipeline import cli, io
 from pipeline.learning import model_eval, runner, training
@@ -673,3 +674,24 @@ def test_a_store_removed_during_training_costs_no_model_and_ends_in_a_named_erro
     assert load_model(tmp_path / "models" / "predictor.pt", expected_kind="predictor")
     assert (tmp_path / "reports" / "models" / "predictor.json").is_file()
     assert "Traceback" not in log
+
+
+def test_a_training_on_two_processes_gives_one_run_and_one_model(chain, tmp_path):
+    """`strategy: ddp` on two CPU devices (gloo): Lightning runs the train command twice, the two processes fit
+    the network together, and rank 0 alone logs, writes and registers (issue 30, deliverable 5)."""
+    tree = yaml.safe_load((chain / "params.yaml").read_text())
+    tree["training"].update(accelerator="cpu", devices=2, strategy="ddp", num_nodes=1)
+    params = write_params(tree, tmp_path / "params.yaml")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    result = subprocess.run(
+        [sys.executable, "-m", "pipeline", "train", "--params", str(params), "--kind", "filter", "--windows", "windows",
+         "--models", str(tmp_path / "models"), "--reports", str(tmp_path / "reports")],
+        cwd=chain, env={**environment(), "MLFLOW_TRACKING_URI": uri}, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "a further process of a training on several devices" in result.stderr  # rank 1 ran, and wrote nothing
+    assert sorted(path.name for path in (tmp_path / "models").iterdir()) == ["filter.pt"]
+    client = mlflow.MlflowClient(tracking_uri=uri)
+    run = only_run(client, "filter")
+    assert run.info.status == "FINISHED" and run.data.params["training.strategy"] == "ddp"
+    assert len(client.search_model_versions(f"name = '{registered_name(EXPERIMENT, 'filter')}'")) == 1
+    assert load_model(tmp_path / "models" / "filter.pt", expected_kind="filter").config == CONFIGS["filter"]

@@ -75,6 +75,7 @@ class FitConfig:
     accelerator: str = "cpu"
     devices: int | str = 1
     strategy: str = "auto"
+    num_nodes: int = 1
     validation: bool = False
     fresh_data_every_epoch: bool = False
     loss_on_device: bool = False
@@ -218,7 +219,7 @@ def fit(module: L.LightningModule, data: L.LightningDataModule, config: FitConfi
     fitted = Fitted()
     mean = EpochMean(config, fitted)
     trainer = L.Trainer(max_epochs=config.epochs, accelerator=config.accelerator, devices=config.devices,
-                        strategy=config.strategy, logger=logger,
+                        strategy=config.strategy, num_nodes=config.num_nodes, logger=logger,
                         callbacks=[mean, FiniteTraining(config, mean), *callbacks],
                         deterministic=config.deterministic, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, num_sanity_val_steps=0,

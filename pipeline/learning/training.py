@@ -3,7 +3,7 @@
 The windows are small (tens of thousands of 5-10 step sequences), so the whole material
 lives in memory as tensors and a batch is one fancy-indexing operation, not 128 calls to
 a Dataset and a collate: with networks this small the per-batch overhead would otherwise
-dominate. Lightning's Trainer takes `accelerator`, `devices` and `strategy` from params,
+dominate. Lightning's Trainer takes `accelerator`, `devices`, `strategy` and `num_nodes` from params,
 so the same stage runs on a GPU or several.
 
 `WindowNetworkRecipe` is how `python -m pipeline train --kind <network>` trains one: the
@@ -60,6 +60,7 @@ class TrainingConfig:
     strategy: str
     threads: int
     deterministic: bool
+    num_nodes: int = 1  # machines (Lightning's Trainer num_nodes)
     early_stopping_min_improvement: float = 0.0  # relative: better means below the best so far x (1 - this)
     lr_decay_factor: float = 0.5  # the learning rate is multiplied by this ...
     lr_decay_patience: int = 0    # ... after this many epochs without a better validation loss; 0 = off

@@ -76,6 +76,7 @@ class Training(Section):
     accelerator: str = knob("Lightning Trainer: cpu, gpu, auto ...")
     devices: int | str = knob("a number of devices (>= 1) or auto", 1, read=_devices)
     strategy: str = knob("Lightning strategy, e.g. ddp for several GPUs or nodes")
+    num_nodes: int = knob("machines the training runs on (Lightning's cluster launch: docs/team.md)", 1)
     threads: int = knob("torch CPU threads per stage (the stages run one after another)", 1)
     deterministic: bool = knob("Lightning's deterministic algorithms")
     kalman_acceleration_std_mps2: float = positive("hold-out reference: CV Kalman process noise (untuned)")
