@@ -11,9 +11,10 @@ differ from run to run. `tests/test_tiny_reports.py` compares the shared tiny pi
 test session against the pinned digests; a change that means to alter an output regenerates them
 here, and the diff of tests/tiny_reports.json names what it altered.
 
-Training is bit-exact on one kind of processor only (README, "Determinism"): the pinned file
-records the processor's torch CPU capability, and on another the test checks the outputs made
-before any training alone.
+Training is bit-exact across x86-64 processors with AVX2 since the package pins PyTorch's kernels
+(pipeline/__init__.py; docs/data.md, "The same bytes on any processor"): the pinned file records
+torch's CPU capability (AVX2 on every such processor), and where it differs (an ARM machine, or a
+user's own ATEN_CPU_CAPABILITY) the test checks the outputs made before any training alone.
 """
 
 from __future__ import annotations
