@@ -98,7 +98,7 @@ def _track(args: argparse.Namespace) -> None:
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
               args.date, args.method, args.window, Path(args.models),
-              Path(args.out), args.management)
+              Path(args.out), args.management, args.confirmed_only)
 
 
 def _associate(args: argparse.Namespace) -> None:
@@ -283,6 +283,9 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                                   "confirms at M hits of N scans and deletes a confirmed track after "
                                   "tracker.management.delete_after_s")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
+        command.add_argument("--confirmed-only", action="store_true",
+                             help="write only the updates of confirmed tracks (the summary still counts every "
+                                  "update by status)")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),
                              help="the two users' track tables (Parquet, the schema `track` writes)")

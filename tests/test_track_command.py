@@ -25,7 +25,7 @@ from pipeline import cli, io
 from pipeline.association import association_net, track_tables
 from pipeline.bench import association_report
 from pipeline.geometry import geodesy
-from pipeline.learning import model_store
+from pipeline.learning import experiment_tracking, model_store
 from pipeline.recordings import external_sort, plot_table, streamed_recording
 from pipeline.stages import track_command as track_command_module
 from pipeline.tracker import recording, registry
@@ -531,7 +531,7 @@ def test_one_feed_under_two_radar_ids_at_one_site_is_tracked_once(params, tmp_pa
     assert pq.read_table(tmp_path / "twice" / "tracks.parquet").to_pandas().equals(once)
     summary = json.loads((tmp_path / "twice" / "tracks.summary.json").read_text())
     assert summary["skipped"] == {"duplicate plot": alone.num_rows} and summary["radars"]["3"]["plots"] == 0
-    assert "confirmed tracks on the plots of 1 radar (no plot tracked of radar 3)" in caplog.text  # not "2 radars"
+    assert "of 1 confirmed track, on the plots of 1 radar (no plot tracked of radar 3)" in caplog.text  # not "2 radars"
 
 
 def test_a_recording_with_every_plot_twice_gives_the_same_tracks(params, tmp_path, filters_only):
@@ -591,6 +591,49 @@ def test_a_recording_read_in_chunks_gives_the_bytes_of_one_read_whole(params, tm
     io.write_parquet(whole, tmp_path / "whole.parquet")
     assert (tmp_path / "whole.parquet").read_bytes() == outputs[5][0]
     assert pq.read_table(tmp_path / "whole.parquet").column("scenario_id").unique().to_pylist() == [7, 8, 9]
+
+
+def test_track_logs_progress_and_its_summary_says_how_the_tracks_were_made(params, tmp_path, filters_only, caplog):
+    """A recording of a few thousand plots (the two-radar recording in twelve scenarios), tracked 500 plots at
+    a time with a progress line after every chunk: progress lines with plots done, rate and time left; the
+    summary names the method, window, management rule and the tuned filters' file with its digest (the tag
+    its registered MLflow version would carry), and counts the updates by status and the tracks started.
+    With --confirmed-only the file holds just the confirmed updates, and the summary counts the same."""
+    plots, radars, _ = two_radar_recording(params, np.random.default_rng(5))
+    recording = pa.concat_tables([with_column(with_values(plots, "scenario_id", np.arange(plots.num_rows), scenario),
+                                              "plot_id", plots.column("plot_id").to_numpy() + 10000 * scenario)
+                                  for scenario in range(12)])
+    assert recording.num_rows > 2000
+    changes = {"compute.chunk_plots": 500, "compute.progress_every_s": 0.0}
+    with caplog.at_level(logging.INFO, logger="pipeline"):
+        assert track_command(tmp_path / "every", filters_only, "imm", recording, radars, changes) == 0
+    progress = [r.getMessage() for r in caplog.records if r.getMessage().startswith("track: plots tracked: ")]
+    assert len(progress) >= 2 and "a second, about" in progress[0] and progress[-1].startswith(
+        f"track: plots tracked: {recording.num_rows}/{recording.num_rows} (100%)")
+    assert "track: method imm, window 4000 m, track management thesis" in caplog.text
+    summary = json.loads((tmp_path / "every" / "tracks.summary.json").read_text())
+    tuned = filters_only / "kalman_tuned.json"
+    assert (summary["method"], summary["window_m"], summary["management"]) == ("imm", 4000.0, "thesis")
+    assert summary["models"] == {str(tuned): experiment_tracking.data_hash(tuned)}
+    tracks = pq.read_table(tmp_path / "every" / "tracks.parquet").to_pydict()
+    status = np.asarray(tracks["status"])
+    assert summary["track_updates_by_status"] == {name: int((status == name).sum())
+                                                  for name in ("tentative", "candidate", "confirmed")}
+    assert summary["tracks"] == len(set(zip(tracks["scenario_id"], tracks["track_id"])))
+    assert summary["track_updates"] == summary["rows_written"] == len(status) == recording.num_rows
+    assert 0 < summary["track_updates_by_status"]["confirmed"] < len(status)
+
+    plots_path, radar_path = tf.write_recording(tmp_path / "every" / "recording", recording, radars)
+    out = tmp_path / "confirmed.parquet"
+    assert cli.main(["track", "--params", str(tmp_path / "every" / "params.yaml"), "--plots", str(plots_path),
+                     "--radar", str(radar_path), "--models", str(filters_only), "--method", "imm",
+                     "--confirmed-only", "--out", str(out)]) == 0
+    confirmed = pq.read_table(out)
+    assert set(confirmed.column("status").to_pylist()) == {"confirmed"}
+    assert confirmed.num_rows == summary["track_updates_by_status"]["confirmed"]
+    only = json.loads(track_command_module.summary_path(out).read_text())
+    assert only["rows_written"] == confirmed.num_rows and only["confirmed_only"] is True
+    assert only["track_updates_by_status"] == summary["track_updates_by_status"]
 
 
 def test_an_output_written_in_row_groups_has_the_bytes_of_one_write(tmp_path):

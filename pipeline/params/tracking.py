@@ -337,6 +337,8 @@ class Params(Section):
     fusion: Fusion = knob("the fusion stage")
     chunk_plots: int = knob("`track` places, tracks and writes this many plots at a time (same output for any "
                             "value; its memory follows this)", 1, key="compute.chunk_plots")
+    progress_every_s: float = knob("long work (`track`) logs a progress line at most this often, s (0: after every "
+                                   "chunk)", 0.0, key="compute.progress_every_s")
 
     def check(self, path: str, context: Mapping[str, Any]) -> Params:
         associate, gate = self.associate, self.association.gate_probability

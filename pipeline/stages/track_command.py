@@ -27,14 +27,19 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import io
+from pipeline.learning.experiment_tracking import data_hash
 from pipeline.params import Params
+from pipeline.progress import progress_logger
 from pipeline.recordings import asterix_io, plot_table, streamed_recording
 from pipeline.recordings.plot_table import NO_SCENARIO
+from pipeline.tracker.loading import model_paths
 from pipeline.tracker.recording import TRACK_SCHEMA, tracked_parts
 from pipeline.tracker.refusals import RefusalCounts, warn_refusals
+from pipeline.tracker.updates import START
 
 log = logging.getLogger("pipeline")
 
+STATUSES = ("tentative", "candidate", "confirmed")  # a track update's status (`TrackManagement.status`)
 TRACK_ROW_GROUP_ROWS = 65536  # rows per row group of `track`'s output: what the writer holds (about 200 B a row)
 
 
@@ -44,24 +49,30 @@ def summary_path(out: Path) -> Path:
 
 
 class RunSummary:
-    """What a user checks first after `track`, gathered as the track updates are written: the plots
-    tracked, the records or plots left out by reason (`Plots.skipped`), the confirmed tracks, and
-    per radar its plots and the confirmed tracks it fed, and the plots a learned gate refused that the
-    window would have taken (`refusals`, `pipeline.tracker.refusals`). A track is one (scenario, track id): each
-    scenario's radars are tracked together, so a track may hold plots of several radars; it counts
-    once in the total and once for each radar whose plots updated it while confirmed. Holds the
-    confirmed tracks' keys, not the updates."""
+    """What a user checks first after `track`, gathered as the track updates are written: how the tracks
+    were made (`made`: method, window, management rule, the model files with their digests), the plots
+    tracked, the records or plots left out by reason (`Plots.skipped`), the tracks started, the updates by
+    status, the confirmed tracks, and per radar its plots and the confirmed tracks it fed, and the plots a
+    learned gate refused that the window would have taken (`refusals`, `pipeline.tracker.refusals`). A
+    track is one (scenario, track id): each scenario's radars are tracked together, so a track may hold
+    plots of several radars; it counts once in the total and once for each radar whose plots updated it
+    while confirmed. Holds the confirmed tracks' keys, not the updates."""
 
-    def __init__(self, plots: int, plot_counts: Mapping[int, int], skipped: Mapping[str, int]) -> None:
-        self.plots, self.plot_counts, self.skipped = plots, plot_counts, skipped
-        self.updates = 0
+    def __init__(self, made: dict, plots: int, plot_counts: Mapping[int, int], skipped: Mapping[str, int]) -> None:
+        self.made, self.plots, self.plot_counts, self.skipped = made, plots, plot_counts, skipped
+        self.updates, self.tracks, self.written = 0, 0, 0
+        self.by_status = {status: 0 for status in STATUSES}
         self.refusals = RefusalCounts()
         self.confirmed: dict[int, set[tuple[int, int]]] = {radar_id: set() for radar_id in plot_counts}
 
     def add(self, tracks: pa.Table) -> None:
         """Count a part of the track updates (TRACK_SCHEMA)."""
         self.updates += tracks.num_rows
-        confirmed = np.asarray(tracks.column("status")) == "confirmed"
+        self.tracks += int(np.count_nonzero(np.asarray(tracks.column("association")) == START))
+        status = np.asarray(tracks.column("status"))
+        for name in STATUSES:
+            self.by_status[name] += int(np.count_nonzero(status == name))
+        confirmed = status == "confirmed"
         radar_ids = np.asarray(tracks.column("radar_id"))[confirmed].tolist()
         scenario_ids = np.asarray(tracks.column("scenario_id").fill_null(NO_SCENARIO))[confirmed].tolist()
         track_ids = np.asarray(tracks.column("track_id"))[confirmed].tolist()
@@ -71,18 +82,31 @@ class RunSummary:
     def report(self) -> dict:
         radars = {str(r): {"plots": self.plot_counts[r], "confirmed_tracks": len(self.confirmed[r])}
                   for r in sorted(self.plot_counts)}
-        return {"plots_tracked": self.plots, "skipped": dict(sorted(self.skipped.items())),
+        return {**self.made, "plots_tracked": self.plots, "skipped": dict(sorted(self.skipped.items())),
                 "plots_skipped": int(sum(self.skipped.values())), "track_updates": self.updates,
+                "track_updates_by_status": self.by_status, "rows_written": self.written, "tracks": self.tracks,
                 "confirmed_tracks": len(set().union(*self.confirmed.values())), "radars": radars,
                 "learned_gate": {"plots_in_window": self.refusals.in_window, "plots_refused": self.refusals.refused}}
 
 
+def how_made(method: str, window_m: float, params: Params, models_dir: Path, confirmed_only: bool) -> dict:
+    """What made a `track` run's output, for its summary: the method, window, track management rule, whether
+    only confirmed updates were written, and each model file the method read with its digest
+    (`experiment_tracking.data_hash`: the tag a registered MLflow model version carries, so the summary
+    names the version that made the tracks)."""
+    paths = model_paths(models_dir, [method])
+    return {"method": method, "window_m": window_m, "management": params.tracker.management.rule,
+            "confirmed_only": confirmed_only,
+            "models": {str(path): data_hash(path) for _, path in sorted(paths.items())}}
+
+
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path,
-              management: str | None = None) -> None:
-    """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates) and its
-    summary beside it (`summary_path`), under the track management rule `management` (one of
-    `registry.MANAGEMENT`; None: params' `tracker.management.rule`). The recording is placed, tracked and written
+              management: str | None = None, confirmed_only: bool = False) -> None:
+    """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates; with
+    `confirmed_only` only the updates of confirmed tracks) and its summary beside it (`summary_path`), under
+    the track management rule `management` (one of `registry.MANAGEMENT`; None: params'
+    `tracker.management.rule`), with a progress line at most every `compute.progress_every_s`. The recording is placed, tracked and written
     `compute.chunk_plots` plots at a time: a Parquet recording is read from its file as it goes
     (`streamed_recording`), one out of time order sorted first into a temporary folder beside `out`
     (in its nearest existing folder), removed at the end; an ASTERIX recording is decoded whole
@@ -107,31 +131,47 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
         scratch = next(folder for folder in out.absolute().parents if folder.exists())
         opened = streamed_recording.read_recording(plots_path, radar_path, params.radar, scratch)
     with opened as recording:
-        _write_tracks(recording, method, window_m, params, models_dir, out,
-                      plots_path or ", ".join(map(str, asterix_paths)))
+        made = how_made(method, window_m, params, models_dir, confirmed_only)
+        log.info("track: method %s, window %g m, track management %s, models %s", method, window_m,
+                 made["management"], ", ".join(made["models"]) or "none but params")
+        _write_tracks(recording, made, params, models_dir, out, plots_path or ", ".join(map(str, asterix_paths)))
 
 
-def _write_tracks(recording: streamed_recording.RecordingParts, method: str, window_m: float, params: Params,
-                  models_dir: Path, out: Path, source: Path | str) -> None:
-    """`run_track`'s work once the recording (read from `source`) is open."""
-    summary = RunSummary(len(recording), recording.plot_counts, recording.skipped)
+def _write_tracks(recording: streamed_recording.RecordingParts, made: dict, params: Params, models_dir: Path,
+                  out: Path, source: Path | str) -> None:
+    """`run_track`'s work once the recording (read from `source`) is open, made as `made` says (`how_made`)."""
+    method, window_m = made["method"], made["window_m"]
+    summary = RunSummary(made, len(recording), recording.plot_counts, recording.skipped)
     if not len(recording):
         log.warning("track: no plots to track in %s: the output will hold no track update", source)
+    progress = progress_logger("track: plots tracked", params.progress_every_s)
     with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir, summary.refusals):
-            written.add(part, new_chunk=first)
             summary.add(part)
+            if made["confirmed_only"]:
+                part = part.filter(pa.compute.equal(part.column("status"), "confirmed"))
+            written.add(part, new_chunk=first)
+            summary.written += part.num_rows
+            progress(summary.updates, len(recording))
         report = summary.report()
         io.write_json(report, summary_path(out))
     warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
     skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
     seen = sum(1 for count in recording.plot_counts.values() if count)  # a radar whose every plot was skipped: none
     unseen = [str(radar_id) for radar_id, count in sorted(recording.plot_counts.items()) if not count]
-    log.info("track: %d plots (%s), %d track updates, %d confirmed tracks on the plots of %d radar%s%s -> %s, "
+    confirmed = report["track_updates_by_status"]["confirmed"]
+    log.info("track: %d plots (%s), %s of %s, %d of them (%.1f %%) of %s, on the plots of %s%s -> %s (%s), "
              "summary %s", len(recording), f"skipped {skipped}" if skipped else "none skipped",
-             report["track_updates"], report["confirmed_tracks"], seen, "" if seen == 1 else "s",
-             f" (no plot tracked of radar {', '.join(unseen)})" if unseen else "", out, summary_path(out))
+             _counted(report["track_updates"], "track update"), _counted(report["tracks"], "track"), confirmed,
+             100.0 * confirmed / max(report["track_updates"], 1), _counted(report["confirmed_tracks"], "confirmed track"),
+             _counted(seen, "radar"), f" (no plot tracked of radar {', '.join(unseen)})" if unseen else "", out,
+             "confirmed updates only" if made["confirmed_only"] else "every update", summary_path(out))
+
+
+def _counted(count: int, noun: str) -> str:
+    """"1 track", "2 tracks"."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 EXPORT_PLOT_SCHEMA = io.schema(  # the columns of `simulate.PLOT_SCHEMA` that `export_asterix` writes

@@ -32,6 +32,12 @@ def _path(models_dir: Path, piece: str, methods: list[str]) -> Path:
     return path
 
 
+def model_paths(models_dir: Path, methods: list[str]) -> dict[str, Path]:
+    """Piece -> the file in `models_dir` that `methods` need of it (registered names; io.InputError naming a
+    missing one and the stage that makes it)."""
+    return {piece: _path(models_dir, piece, methods) for piece in sorted(registry.needs(methods))}
+
+
 def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
     """What `methods` (registered names) need from `models_dir`, checked against params, loaded in the
     order of `PIECES`.
@@ -43,7 +49,7 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
         from pipeline.learning import devices
 
         devices.resolve(params.tracker.device)  # ParamError before any file is read when the device is not here
-    paths = {piece: _path(models_dir, piece, methods) for piece in sorted(needed)}
+    paths = model_paths(models_dir, methods)
     if any(PIECES[piece].network for piece in needed):
         import torch
 
