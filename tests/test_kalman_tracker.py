@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.filters import classical_filters
+from pipeline.filters import classical_filters, motion_models
 from pipeline.geometry import geodesy
 from pipeline.tracker import registry
 from pipeline.tracker.gate import ChiSquareGate
@@ -51,7 +51,8 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
     at every later plot the prediction the gate scores with (combined position and covariance; the
     IMM's own predicted density), the chi-square gate's normalised error (d^2 / quantile, d^2 computed
     from filterpy's prediction with np.linalg.solve), the position and covariance after the update and
-    the IMM's predicted mode probabilities all equal filterpy's to rounding. A plot 5 km off is gated
+    the IMM's predicted mode probabilities all equal filterpy's to rounding, and so do the velocity and its
+    covariance the estimator gives after the update (of the IMM's mixed models: mixing keeps the moments). A plot 5 km off is gated
     out (infinite error) and changes nothing; at plot COAST_AT the track coasts (predicted, gated, not
     updated) and its next update spans two scans."""
     settings = tf.untuned_filters(params)[kind]
@@ -92,6 +93,10 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
         x, P = classical_filters.posterior(reference)
         np.testing.assert_allclose(position, x[settings.measured], rtol=1e-12, atol=1e-6)
         np.testing.assert_allclose(position_covariance, P[measured], rtol=1e-9, atol=1e-6)
+        velocity, velocity_covariance = estimator.velocities(live, slots)  # from the stored (IMM: mixed) filters
+        at = motion_models.velocity_indices(settings.models[0])
+        np.testing.assert_allclose(velocity[0], x[at], rtol=1e-9, atol=1e-6)
+        np.testing.assert_allclose(velocity_covariance[0], P[np.ix_(at, at)], rtol=1e-7, atol=1e-6)
         if kind == "imm":
             np.testing.assert_allclose(estimator.mu[slot], reference.cbar, rtol=1e-9, atol=1e-12)
     assert gated_out >= len(flight) - 3  # the 5 km plots, bar the first few while the velocity is unknown

@@ -636,6 +636,32 @@ def test_track_logs_progress_and_its_summary_says_how_the_tracks_were_made(param
     assert only["track_updates_by_status"] == summary["track_updates_by_status"]
 
 
+def test_the_output_carries_the_filters_velocity_as_ground_speed_course_and_vertical_rate(params, tmp_path,
+                                                                                            filters_only):
+    """The straight level target of the two-radar recording (180 m/s east, 90 m/s north in radar 1's frame: 201 m/s
+    on a course of 63.4 degrees there, exact plots) tracked by the IMM: its confirmed updates give its ground
+    speed to 1 m/s, its course at its own position (the meridians converge: 64.4 degrees 70 km east) to half a
+    degree and its vertical rate (level in the radar's frame, it climbs 2-3 m/s over the curved Earth at 70-100 km)
+    to half a metre a second, with a positive velocity variance; a track's start has no velocity (null)."""
+    plots, radars, target_ids = two_radar_recording(params, np.random.default_rng(6))
+    alone = plots.filter(pa.compute.equal(plots.column("radar_id"), 1))
+    assert track_command(tmp_path, filters_only, "imm", alone, radars.slice(0, 1)) == 0
+    tracks = pq.read_table(tmp_path / "tracks.parquet").to_pandas()
+    target = tracks[tracks["plot_id"].isin(target_ids) & (tracks["status"] == "confirmed")]
+    assert len(target) >= 15
+    np.testing.assert_allclose(target["ground_speed_mps"], np.hypot(180.0, 90.0), atol=1.0)
+    velocity_ecef = geodesy.enu_rotation(params.radar.latitude_deg, params.radar.longitude_deg).T @ [180.0, 90.0, 0.0]
+    east, north, up = np.einsum("uij,j->iu", geodesy.enu_rotations(target["latitude_deg"].to_numpy(),
+                                                                  target["longitude_deg"].to_numpy()), velocity_ecef)
+    np.testing.assert_allclose(target["course_deg"], np.degrees(np.arctan2(east, north)), atol=0.5)
+    np.testing.assert_allclose(target["vertical_rate_mps"], up, atol=0.5)  # a straight line climbs over the Earth
+    assert (target["velocity_covariance_xx_m2_s2"] > 0.0).all()
+    speed = np.sqrt(target["vx_ecef_mps"] ** 2 + target["vy_ecef_mps"] ** 2 + target["vz_ecef_mps"] ** 2)
+    np.testing.assert_allclose(speed, np.hypot(target["ground_speed_mps"], target["vertical_rate_mps"]), rtol=1e-9)
+    starts = tracks[tracks["association"] == "start"]
+    assert starts[list(recording.VELOCITY_COLUMNS)].isna().all().all()
+
+
 def test_an_output_written_in_row_groups_has_the_bytes_of_one_write(tmp_path):
     """`io.ParquetChunks` with row groups of 4 rows, given chunks of 3, 6 and 2 rows in parts of 1-2
     rows: the bytes of `pq.write_table` on the chunks joined, in row groups of 4."""

@@ -36,6 +36,7 @@ class StayingEstimator:
     the plot. It records every prediction it makes and every prediction an update is given."""
 
     gives_covariance = False
+    gives_velocity = False
     pairwise = True  # it ignores the time: any (track, plot) pairs
     latest_plots = 0  # it reads no plot of a track's
 

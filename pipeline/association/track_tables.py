@@ -44,7 +44,8 @@ from pipeline.association.track_association import correlation_eigenvalues
 from pipeline.geometry import geodesy
 from pipeline.recordings import input_checks
 from pipeline.recordings.plot_table import NO_SCENARIO, OPTIONAL_RADAR_COLUMNS, RADAR_FILE_SCHEMA
-from pipeline.tracker.recording import COVARIANCE_COLUMNS, COVARIANCE_ENTRIES, TRACK_SCHEMA
+from pipeline.tracker.recording import (COVARIANCE_COLUMNS, COVARIANCE_ENTRIES, TRACK_SCHEMA, VELOCITY_COLUMNS,
+                                       VELOCITY_COVARIANCE_COLUMNS)
 
 log = logging.getLogger("pipeline")
 
@@ -209,7 +210,8 @@ def check_one_aircraft(path: Path, scenario: np.ndarray, track: np.ndarray, rada
 def read_track_table(path: Path, radar_path: Path, max_speed_mps: float) -> TrackTable:
     """The confirmed updates of a track table, checked against its radar description (module docstring)."""
     sites, scan_periods = read_sites(radar_path)
-    table = io.read_parquet(path, TRACK_SCHEMA, optional=("scenario_id", "association_error", *COVARIANCE_COLUMNS))
+    table = io.read_parquet(path, TRACK_SCHEMA, optional=("scenario_id", "association_error", *COVARIANCE_COLUMNS,
+                                                              *VELOCITY_COLUMNS, *VELOCITY_COVARIANCE_COLUMNS))
     _check_radars(path, radar_path, table.column("radar_id").to_numpy(), sites)
     return track_table(table, sites, path, max_speed_mps, scan_periods)
 

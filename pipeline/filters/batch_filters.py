@@ -191,6 +191,15 @@ def position_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
     return combined(state.mu, state.x[..., ::step], state.P[..., ::step, ::step])
 
 
+def velocity_estimates(state: BatchState) -> tuple[np.ndarray, np.ndarray]:
+    """The tracks' velocities (B, 3) m/s and their covariances (B, 3, 3) m^2/s^2, their models combined
+    (`combined`; state per axis [p, v] or [p, v, a]). Of an IMM's mixed state as the tracker stores it
+    after an update (`mixed`) they are the posterior's: mixing keeps the mixture's mean and covariance
+    (Bar-Shalom, Li & Kirubarajan 2001, 11.6.6, the mixing probabilities summed over the models)."""
+    step = state.x.shape[-1] // 3
+    return combined(state.mu, state.x[..., 1::step], state.P[..., 1::step, 1::step])
+
+
 def _overwrite(state: BatchState, rows: np.ndarray | slice, source: BatchState, tracks: np.ndarray | slice) -> None:
     """Tracks `rows` of `state` become the tracks `tracks` of `source` (in place)."""
     state.x[rows], state.P[rows], state.mu[rows] = source.x[tracks], source.P[tracks], source.mu[tracks]

@@ -20,6 +20,10 @@ memory does not grow with a track's age (`pipeline.tracker.tracks`). A track's p
   predicts itself if it needs to. Returns the track's new position (3,) and, if the estimator
   gives one (`gives_covariance`), its covariance (3, 3), else None. The plot is not yet in the
   track's rows.
+- `velocities(tracks, slots)` (estimators with `gives_velocity` only): the velocities (K, 3) m/s, ECEF, of
+  the tracks at `slots` (K,) after their latest update, and their covariances (K, 3, 3) m^2/s^2 or
+  None. The loop asks it after an update when the run records velocities (`track` does; the bench's
+  metrics need none).
 - `update_pairs(tracks, slots, rows, prediction, indices)` (`pairwise` estimators only): the
   updates of several different tracks (P,), each with its plot, from rows `indices` of one
   prediction, in one call: positions (P, 3) and covariances (P, 3, 3) or None. The loop makes a
@@ -55,6 +59,7 @@ class Prediction(NamedTuple):
 
 class Estimator(Protocol):
     gives_covariance: bool
+    gives_velocity: bool
     pairwise: bool
     latest_plots: int
 

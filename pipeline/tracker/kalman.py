@@ -35,6 +35,7 @@ class KalmanEstimator:
     """One tuned classical filter per live track."""
 
     gives_covariance = True
+    gives_velocity = True
     pairwise = True
     latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
@@ -118,6 +119,11 @@ class KalmanEstimator:
         position, covariance = self._updated(tracks, slice(slot, slot + 1), slice(row, row + 1), prediction,
                                              slice(index, index + 1))
         return position[0], covariance[0]
+
+    def velocities(self, tracks: LiveTracks, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The velocities (K, 3) m/s and their covariances (K, 3, 3) of the tracks at `slots` after their
+        latest update (`batch_filters.velocity_estimates` of the stored filters)."""
+        return batch_filters.velocity_estimates(BatchState(self.x[slots], self.P[slots], self.mu[slots]))
 
     def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

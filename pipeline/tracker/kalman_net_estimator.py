@@ -51,7 +51,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pipeline.filters import motion_models, torch_filters
+from pipeline.filters import batch_filters, motion_models, torch_filters
+from pipeline.filters.batch_filters import BatchState
 from pipeline.filters.torch_filters import State, StepScales
 from pipeline.learning import batch_rows, devices, step_runtime
 from pipeline.learning.kalman_net import KalmanNet, Memory
@@ -64,6 +65,7 @@ class KalmanNetEstimator:
     """One network-scaled filter per live track, of the trained `model` (eval mode, no gradients)."""
 
     gives_covariance = True
+    gives_velocity = True
     pairwise = True
     latest_plots = 0  # a track's first plot starts its filter; the filter keeps the rest
 
@@ -130,6 +132,13 @@ class KalmanNetEstimator:
         for f in fields(Memory):
             getattr(self.memory, f.name)[index] = getattr(memory, f.name)
         self.time[slots] = time
+
+    def velocities(self, tracks: LiveTracks, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The velocities (K, 3) m/s and their covariances (K, 3, 3) of the tracks at `slots` after their
+        latest update, their models combined as the classical filters' (`batch_filters.velocity_estimates`)."""
+        index = self._index(slots)
+        return batch_filters.velocity_estimates(BatchState(*(values[index].cpu().numpy()
+                                                              for values in (self.x, self.P, self.mu))))
 
     def _measured(self, tracks: LiveTracks, rows: list[int] | np.ndarray) -> tuple[Tensor, Tensor]:
         """The plots' positions z (K, 3) m and R0 = their covariances x r0_scale (K, 3, 3) m^2."""

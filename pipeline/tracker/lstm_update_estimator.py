@@ -58,6 +58,7 @@ class LSTMUpdateEstimator:
     """One MC-dropout ensemble of the LSTM-update estimator per live track."""
 
     gives_covariance = True
+    gives_velocity = True
     pairwise = True
     latest_plots = 0  # a track's first plot starts its ensemble; the ensemble keeps the rest
 
@@ -138,6 +139,13 @@ class LSTMUpdateEstimator:
         position, covariance = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction,
                                                  np.array([index]))
         return position[0], covariance[0]
+
+    def velocities(self, tracks: LiveTracks, slots: np.ndarray) -> tuple[np.ndarray, None]:
+        """The velocities (K, 3) m/s of the tracks at `slots` after their latest update: the point
+        estimate's (copy 0, undropped), state per axis [p, v, a]. No covariance: the network calibrates
+        only the position's (`LSTMUpdate.estimate_covariance`)."""
+        x = self.ensemble.x[torch.as_tensor(slots, device=self.device)]
+        return x[:, 0, 1::3].cpu().numpy(), None
 
     def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -35,6 +35,7 @@ class NetworkEstimator:
     """Predictor and filter networks with their scalers."""
 
     gives_covariance = False
+    gives_velocity = False  # the networks give positions only
     pairwise = True
 
     def __init__(self, models: Models) -> None:

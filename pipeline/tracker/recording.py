@@ -3,13 +3,16 @@ tracker run over a recording's scenarios into that table.
 
 One row per track update (TRACK_SCHEMA; docs/tracking-a-recording.md): the plot's radar, the track,
 its ECEF and geodetic position, the range from the plot's radar, the management weight and status,
-how the plot was associated, and the position's ECEF covariance (upper triangle, null for an
-estimator that gives none). `track` writes it, `associate` and the two-radar bench read it
+how the plot was associated, the position's ECEF covariance (upper triangle, null for an
+estimator that gives none), and the estimator's velocity: ECEF, as ground speed, course and vertical
+rate at the track's position, and its ECEF covariance (null for a track's start, for an estimator
+without velocity, the thesis networks, and the covariance for one without it, the LSTM update). `track` writes it, `associate` and the two-radar bench read it
 (`pipeline.association.track_tables`), so it lives with the tracker that makes it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Iterable, Iterator, Mapping
@@ -46,17 +49,41 @@ TRACK_SCHEMA = io.schema(
     ("association_error", pa.float64(), True),
     *((name, pa.float64(), True) for name in ("covariance_xx_m2", "covariance_xy_m2", "covariance_xz_m2",
                                               "covariance_yy_m2", "covariance_yz_m2", "covariance_zz_m2")),
+    *((name, pa.float64(), True) for name in ("vx_ecef_mps", "vy_ecef_mps", "vz_ecef_mps", "ground_speed_mps",
+                                              "course_deg", "vertical_rate_mps")),
+    *((f"velocity_{name}_m2_s2", pa.float64(), True) for name in ("covariance_xx", "covariance_xy", "covariance_xz",
+                                                                   "covariance_yy", "covariance_yz", "covariance_zz")),
 )
-COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-6:]  # the position's ECEF covariance, upper triangle; null when the
-COVARIANCE_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # estimator gives none (the networks)
+COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-18:-12]  # the position's ECEF covariance, upper triangle; null when
+COVARIANCE_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the estimator gives none (the networks)
+VELOCITY_COLUMNS = TRACK_SCHEMA.names[-12:-6]  # ECEF m/s, ground speed m/s, course deg (clockwise from true
+                                               # north), vertical rate m/s (up); null where unknown
+VELOCITY_COVARIANCE_COLUMNS = TRACK_SCHEMA.names[-6:]  # the ECEF velocity's covariance, upper triangle, m^2/s^2
 SCAN_SLACK = 1.5  # scans a new track must outlive (`warn_short_silences`): half a revolution of slack for the
                   # plot's place in the scan, as M-of-N's miss (`pipeline.tracker.m_of_n`)
 
 
-def covariance_columns(covariances: np.ndarray) -> dict[str, pa.Array]:
-    """COVARIANCE_COLUMNS of (U, 3, 3) ECEF position covariances, m^2; null where NaN (an estimator giving none)."""
-    return {name: pa.array(covariances[:, i, j], mask=np.isnan(covariances[:, i, j]))
-            for name, (i, j) in zip(COVARIANCE_COLUMNS, COVARIANCE_ENTRIES)}
+def covariance_columns(covariances: np.ndarray, names: tuple[str, ...] | list[str] = COVARIANCE_COLUMNS
+                       ) -> dict[str, pa.Array]:
+    """`names` (COVARIANCE_COLUMNS, or VELOCITY_COVARIANCE_COLUMNS) of (U, 3, 3) ECEF covariances, upper
+    triangle; null where NaN (an estimator giving none)."""
+    return {name: _nullable(covariances[:, i, j]) for name, (i, j) in zip(names, COVARIANCE_ENTRIES)}
+
+
+def _nullable(values: np.ndarray) -> pa.Array:
+    return pa.array(values, mask=np.isnan(values))
+
+
+def velocity_columns(velocity: np.ndarray, latitude_deg: np.ndarray, longitude_deg: np.ndarray
+                     ) -> dict[str, pa.Array]:
+    """VELOCITY_COLUMNS of (U, 3) ECEF velocities, m/s, at the tracks' geodetic positions: the ECEF
+    components, and in the local east-north-up frame (thesis eq. 4.6's rotation) the ground speed
+    sqrt(e^2 + n^2), the course atan2(e, n) in [0, 360) degrees clockwise from true north (ICAO's track
+    angle) and the vertical rate u; null where the velocity is unknown (NaN)."""
+    east, north, up = np.einsum("uij,uj->iu", geodesy.enu_rotations(latitude_deg, longitude_deg), velocity)
+    course = np.mod(np.degrees(np.arctan2(east, north)), 360.0)
+    values = (velocity[:, 0], velocity[:, 1], velocity[:, 2], np.hypot(east, north), course, up)
+    return {name: _nullable(value) for name, value in zip(VELOCITY_COLUMNS, values)}
 
 
 def warn_short_silences(management: TrackManagement, rule: str, radars: Mapping[int, Radar]) -> list[int]:
@@ -104,7 +131,8 @@ def tracked_parts(scenarios: Iterable[tuple[int, Iterable[Plots]]], radars: Mapp
     sites = {radar_id: geodesy.radar_site_ecef(radar) for radar_id, radar in radars.items()}
     for scenario_id, chunks in scenarios:
         seed = [params.tracker.seed, scenario_id] if scenario_id != NO_SCENARIO else [params.tracker.seed]
-        tracker = registry.compose(method, models, params.tracker, window_m, seed)
+        tracker = dataclasses.replace(registry.compose(method, models, params.tracker, window_m, seed),
+                                      records_velocity=True)
         for number, updates in enumerate(track_chunks(chunks, tracker)):
             yield scenario_id, _track_table(updates, scenario_id, sites, management), number == 0
         if tracker.refusals is not None:
@@ -128,4 +156,6 @@ def _track_table(updates: dict[str, np.ndarray], scenario_id: int, sites: Mappin
         "status": [management.status(w) for w in updates["weight"]],
         "association": updates["association"].astype(str), "association_error": updates["association_error"],
         **covariance_columns(updates["position_covariance"]),
+        **velocity_columns(updates["velocity"], lat, lon),
+        **covariance_columns(updates["velocity_covariance"], VELOCITY_COVARIANCE_COLUMNS),
     }, schema=TRACK_SCHEMA)

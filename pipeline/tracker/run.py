@@ -62,7 +62,8 @@ class Composition:
     `_candidates`). `refusals`: counts, for a composition with a learned gate, the plots it refused
     that the window would have taken (None: none counted). `revisit_scans`: a track that took a plot
     of a radar is not offered another plot of that radar within this many of its scans (0: it is;
-    see `_candidates`)."""
+    see `_candidates`). `records_velocity`: the updates carry the estimator's velocity where it gives one
+    (`Estimator.velocities`; `track` records them, the bench does not)."""
 
     label: str
     estimator: Estimator
@@ -76,6 +77,7 @@ class Composition:
     mature_first: bool
     refusals: RefusalWatch | None = None
     revisit_scans: float = 0.0
+    records_velocity: bool = False
 
     @property
     def pairwise(self) -> bool:
@@ -122,7 +124,8 @@ def track_chunks(chunks: Iterable[Plots], tracker: Composition) -> Iterator[dict
             first = live.carry(todo)
         bounds = tracker.assigner.batches(todo)
         last = len(bounds) - 1 if following is None else max(len(bounds) - 2, 0)
-        updates = Updates(tracker.estimator.gives_covariance)
+        updates = Updates(tracker.estimator.gives_covariance,
+                          tracker.records_velocity and tracker.estimator.gives_velocity)
         for begin, end, ahead in _runs(bounds[:last + 1].tolist(), tracker.looks_ahead):
             (_track_ahead if ahead else _track_batch)(live, range(first + begin, first + end), tracker, updates)
         waiting = None if following is None else todo.take(np.arange(bounds[last], len(todo)))
@@ -232,8 +235,12 @@ def _take(live: LiveTracks, row: int, c: Candidates, choice: tuple[int, int, int
         prediction, index = (c.prediction, _prediction_row(c, at)) if mature else (None, 0)
         position, covariance = estimator.update(live, slot, row, prediction, index)
     live.associate(slot, row, position)
+    velocity = None
+    if updates.with_velocity:
+        values, spreads = estimator.velocities(live, np.array([slot]))
+        velocity = (values[0], None if spreads is None else spreads[0])
     updates.add(track_id, row, position, live.weight[slot], tracker.label if mature else tracker.young_label,
-                float(c.errors[at]), covariance)
+                float(c.errors[at]), covariance, velocity)
 
 
 def _prediction_row(c: Candidates, at: int) -> int:

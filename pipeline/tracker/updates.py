@@ -14,6 +14,8 @@ the table's length U:
 | `association` | (U,) str | `start`, or the label of the gate that won (`radius` for young tracks, else the method) |
 | `association_error` | (U,) | the normalised error of the association, NaN for a start |
 | `position_covariance` | (U, 3, 3) m^2 | of the position; a start's is its plot's measurement covariance; NaN for estimators that give none |
+| `velocity` | (U, 3) m/s | the track's ECEF velocity after the update, where the run records it (`Updates.with_velocity`); NaN for a start (unknown from one plot), a run that does not record it or an estimator that has none |
+| `velocity_covariance` | (U, 3, 3) m^2/s^2 | of the velocity; NaN where the velocity is, or the estimator gives none |
 
 An *association to a confirmed track* (`confirmed_associations`) is an update that is not a start
 and after which the track's weight is confirmed by the track management rule; the metrics, OSPA,
@@ -29,16 +31,20 @@ from pipeline.tracker.management import TrackManagement
 
 START = "start"
 COLUMNS = ("track_id", "time_unix_s", "plot_id", "radar_id", "x_ecef_m", "y_ecef_m", "z_ecef_m", "weight",
-           "association", "association_error", "position_covariance")
+           "association", "association_error", "position_covariance", "velocity", "velocity_covariance")
 UNKNOWN_COVARIANCE = np.full((3, 3), np.nan)
+UNKNOWN_VELOCITY = np.full(3, np.nan)
 
 
 class Updates:
     """The update table of one run, collected row by row (`add`) and given as arrays (`table`);
-    covariances are kept only when the estimator gives them (`with_covariance`)."""
+    covariances are kept only when the estimator gives them (`with_covariance`), velocities only when
+    the run records them (`with_velocity`)."""
 
-    def __init__(self, with_covariance: bool) -> None:
-        self.with_covariance = with_covariance
+    def __init__(self, with_covariance: bool, with_velocity: bool = False) -> None:
+        self.with_covariance, self.with_velocity = with_covariance, with_velocity
+        self._velocity: list[np.ndarray] = []
+        self._velocity_covariance: list[np.ndarray] = []
         self._track_id: list[int] = []
         self._row: list[int] = []
         self._position: list[np.ndarray] = []
@@ -48,9 +54,14 @@ class Updates:
         self._covariance: list[np.ndarray] = []
 
     def add(self, track_id: int, row: int, position: np.ndarray, weight: float, association: str, error: float,
-            covariance: np.ndarray | None) -> None:
+            covariance: np.ndarray | None, velocity: tuple[np.ndarray, np.ndarray | None] | None = None) -> None:
         """One update of track `track_id` with plot `row`: its position (3,) after it, weight,
-        association label and normalised error, and the position's covariance (3, 3)."""
+        association label and normalised error, the position's covariance (3, 3), and, when velocities
+        are recorded, the velocity (3,) and its covariance (3, 3) or None (None: unknown)."""
+        if self.with_velocity:
+            value, spread = velocity if velocity is not None else (UNKNOWN_VELOCITY, None)
+            self._velocity.append(value)
+            self._velocity_covariance.append(UNKNOWN_COVARIANCE if spread is None else spread)
         self._track_id.append(track_id)
         self._row.append(row)
         self._position.append(position)
@@ -66,11 +77,15 @@ class Updates:
         position = np.asarray(self._position, dtype=float).reshape(-1, 3)
         covariance = (np.asarray(self._covariance, dtype=float).reshape(-1, 3, 3) if self.with_covariance
                       else np.broadcast_to(UNKNOWN_COVARIANCE, (len(rows), 3, 3)).copy())
+        velocity = (np.asarray(self._velocity, dtype=float).reshape(-1, 3) if self.with_velocity
+                    else np.broadcast_to(UNKNOWN_VELOCITY, (len(rows), 3)).copy())
+        velocity_covariance = (np.asarray(self._velocity_covariance, dtype=float).reshape(-1, 3, 3)
+                               if self.with_velocity else np.broadcast_to(UNKNOWN_COVARIANCE, (len(rows), 3, 3)).copy())
         return {"track_id": np.asarray(self._track_id, dtype=np.int64), "time_unix_s": plots.time[rows],
                 "plot_id": plots.plot_id[rows], "radar_id": plots.radar_id[rows], "x_ecef_m": position[:, 0],
                 "y_ecef_m": position[:, 1], "z_ecef_m": position[:, 2], "weight": np.asarray(self._weight, dtype=float),
                 "association": np.asarray(self._association, dtype=str), "association_error": np.asarray(self._error, dtype=float),
-                "position_covariance": covariance}
+                "position_covariance": covariance, "velocity": velocity, "velocity_covariance": velocity_covariance}
 
 
 def confirmed_associations(updates: dict[str, np.ndarray], management: TrackManagement) -> np.ndarray:
