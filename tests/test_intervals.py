@@ -93,8 +93,29 @@ def test_the_verdict_calls_a_difference_inside_its_interval_a_tie():
               "MAE": {"via_4000": {"imm_gnn_4000": [-14.0, -6.0]}}}
     holdout = {"filter_error_m": {}}
     said = "\n".join(verdict(runs, holdout, {"level": 0.95, "paired": paired}))
-    assert "OSPA: best neural via_4000 239.7, best classical imm_gnn_4000 240.2; **a tie within the noise** " \
-           "(paired 95% interval of via_4000 − imm_gnn_4000: [-3.1, 2.2] holds 0)." in said
+    assert ("OSPA: best of the thesis's networks via_4000 239.7; tuned classical filters imm_gnn_4000 240.2. Best "
+            "against the next family's best: **a tie within the noise** (paired 95% interval of via_4000 − "
+            "imm_gnn_4000: [-3.1, 2.2] holds 0).") in said
     assert "**via_4000** wins (paired 95% interval of via_4000 − imm_gnn_4000: [0.03, 0.07])." in said
     assert "**via_4000** wins (paired 95% interval of via_4000 − imm_gnn_4000: [-14, -6])." in said
     assert "**via_4000** wins." in "\n".join(verdict(runs, holdout))  # reports before intervals: the bare verdict
+
+
+def test_the_verdict_names_the_best_of_each_of_the_three_families_and_backs_the_winner_against_the_next():
+    """The thesis's networks, the learned Kalman hybrids and the tuned classical filters each by their best run;
+    the winner is compared with the best of the next family, not with a run of its own family."""
+    params = tf.make_params({"evaluate.runs": [{"method": name, "window_m": 4000.0}
+                                               for name in ("via", "lstm_update", "kalman_net", "imm_gnn")],
+                             "evaluate.example_run": "via_4000", "evaluate.site_runs": [], "evaluate.scene_runs": []})
+    declared = declared_runs(params)
+    metrics = {"via_4000": {"OSPA": 260.0, "ROCA": 0.95, "MAE": 170.0},
+               "lstm_update_4000": {"OSPA": 230.0, "ROCA": 0.96, "MAE": 140.0},
+               "kalman_net_4000": {"OSPA": 235.0, "ROCA": 0.96, "MAE": 141.0},
+               "imm_gnn_4000": {"OSPA": 240.0, "ROCA": 0.97, "MAE": 150.0}}
+    runs = {declared[name]: values for name, values in metrics.items()}
+    paired = {"OSPA": {"lstm_update_4000": {"imm_gnn_4000": [-14.0, -6.0], "kalman_net_4000": [-9.0, -1.0]}}}
+    said = "\n".join(verdict(runs, {"filter_error_m": {}}, {"level": 0.95, "paired": paired}))
+    assert ("OSPA: best of the thesis's networks via_4000 260; learned Kalman hybrids lstm_update_4000 230; tuned "
+            "classical filters imm_gnn_4000 240. Best against the next family's best: **lstm_update_4000** wins "
+            "(paired 95% interval of lstm_update_4000 − imm_gnn_4000: [-14, -6]).") in said
+    assert "ROCA): best of the thesis's networks via_4000 0.95; learned Kalman hybrids lstm_update_4000 0.96" in said

@@ -302,8 +302,8 @@ def verdict(runs: Mapping[Run, dict], holdout: dict, intervals: dict | None = No
     `tracker_intervals.json`) every win is backed by its paired interval, and a difference whose
     interval holds 0 is called a tie."""
     trackers = {run.name: values for run, values in runs.items() if not run.reference}
-    neural = {run.name: v for run, v in runs.items() if run.family == registry.NEURAL}
-    classical = {run.name: v for run, v in runs.items() if run.family == registry.CLASSICAL}
+    families = {name: {run.name: v for run, v in runs.items() if not run.reference and registry.group(run.method) == name}
+                for name in registry.GROUPS}
     oracle_run = next((run for run in runs if run.reference and run.method == ORACLE), None)
     oracle = runs[oracle_run] if oracle_run is not None else None
     sentences = []
@@ -311,21 +311,20 @@ def verdict(runs: Mapping[Run, dict], holdout: dict, intervals: dict | None = No
     def best(group: dict, metric: str, low: bool = True) -> str:
         return min(group, key=lambda n: group[n][metric] if low else -group[n][metric])
 
-    if neural and classical:
-        for metric, low, what in (("OSPA", True, "OSPA"), ("ROCA", False, "share of target plots in confirmed "
-                                                                          "tracks (ROCA)")):
-            n, c = best(neural, metric, low), best(classical, metric, low)
-            winner = c if (classical[c][metric] < neural[n][metric]) == low else n
-            sentences.append(f"- {what}: best neural {n} {neural[n][metric]:.4g}, best classical {c} "
-                             f"{classical[c][metric]:.4g}; {_outcome(intervals, metric, n, c, winner)}")
-        kept = {group: {k: v for k, v in members.items() if v["ROCA"] >= MAE_MIN_ROCA}
-                for group, members in (("neural", neural), ("classical", classical))}
-        if kept["neural"] and kept["classical"]:
-            n, c = best(kept["neural"], "MAE"), best(kept["classical"], "MAE")
-            winner = c if classical[c]["MAE"] < neural[n]["MAE"] else n
-            sentences.append(f"- position error (MAE) among trackers keeping at least {MAE_MIN_ROCA:.0%} of the "
-                             f"target plots: best neural {n} {neural[n]['MAE']:.4g} m, best classical {c} "
-                             f"{classical[c]['MAE']:.4g} m; {_outcome(intervals, 'MAE', n, c, winner)}")
+    kept = {name: {k: v for k, v in members.items() if v["ROCA"] >= MAE_MIN_ROCA} for name, members in families.items()}
+    for metric, low, what, among, unit in (
+            ("OSPA", True, "OSPA", families, ""),
+            ("ROCA", False, "share of target plots in confirmed tracks (ROCA)", families, ""),
+            ("MAE", True, f"position error (MAE) among trackers keeping at least {MAE_MIN_ROCA:.0%} of the target "
+                          "plots", kept, " m")):
+        bests = {name: best(members, metric, low) for name, members in among.items() if members}
+        if len(bests) < 2:
+            continue
+        ranked = sorted(bests.values(), key=lambda n: trackers[n][metric] if low else -trackers[n][metric])
+        winner, runner_up = ranked[0], ranked[1]
+        listed = "; ".join(f"{name} {run} {trackers[run][metric]:.4g}{unit}" for name, run in bests.items())
+        sentences.append(f"- {what}: best of {listed}. Best against the next family's best: "
+                         f"{_outcome(intervals, metric, winner, runner_up, winner)}")
     if oracle is not None and trackers:
         top = best(trackers, "OSPA")
         gap = _paired(intervals, "OSPA", top, oracle_run.name)

@@ -201,6 +201,21 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
+# the three families the results are told in (the README's headline): the thesis's networks (predictor and filter,
+# with its association methods), the learned Kalman hybrids (a Kalman filter with a learned part), tuned classical
+GROUPS = THESIS_NETWORKS, LEARNED_HYBRIDS, TUNED_CLASSICAL = ("the thesis's networks", "learned Kalman hybrids",
+                                                              "tuned classical filters")
+
+
+def group(name: str) -> str | None:
+    """Which of GROUPS the method `name` belongs to (None for a reference, the oracle); UnknownMethod if none."""
+    found = method(name)
+    if found.family == REFERENCE:
+        return None
+    if found.family == CLASSICAL:
+        return TUNED_CLASSICAL
+    return LEARNED_HYBRIDS if set(found.needs) & {KALMAN_NET, LSTM_UPDATE} else THESIS_NETWORKS
+
 REFERENCES = tuple(name for name, method in METHODS.items() if method.family == REFERENCE)
 # the trackers whose updates carry a position covariance (what track-to-track association and fusion read): all
 # but the thesis's networks, whose estimator (`network_estimator`, the predictor and filter) gives none
