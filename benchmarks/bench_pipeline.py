@@ -9,7 +9,10 @@ reports) and whose inputs come out byte-identical would otherwise be skipped. Ea
 sum is what a user waits for `dvc repro`. Peak memory is the largest resident set of the
 processes of that stage (`os.wait4`: DVC and the stage's Python). The result goes to
 `reports/pipeline_speed.json` (atomically), and the Speed table of docs/speed.md is regenerated
-from it with `python -m pipeline readme`.
+from it with `python -m pipeline readme`. The report also records what was measured: the commit, each
+stage's code as the run's `dvc.lock` hashed it (`tests/test_docs.py` holds it against the committed
+`dvc.lock`, so a time older than the code it measures fails), and the stages the README walkthrough's
+experiment reruns (`EXPERIMENT_PARAM` and every stage downstream of those that read it) with their time.
 
     python benchmarks/bench_pipeline.py                      # default params.yaml, ~10 minutes
     python benchmarks/bench_pipeline.py --params tiny.yaml --out /tmp/speed.json --no-readme
@@ -46,6 +49,41 @@ def timed(command: list[str], cwd: Path, env: dict[str, str], log: Path) -> tupl
         child = subprocess.Popen(command, cwd=cwd, env=env, stdout=output, stderr=subprocess.STDOUT)
         _, status, usage = os.wait4(child.pid, 0)
     return time.perf_counter() - start, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
+
+
+EXPERIMENT_PARAM = "training.predictor.learning_rate"  # the README walkthrough's `dvc exp run -S ...`
+
+
+def reruns(stages: dict, param: str) -> list[str]:
+    """The stages of dvc.yaml's `stages` (in its order) that a change of `param` reruns: those listing it,
+    or a section above it, among their params, and every stage downstream of them."""
+    def reads(stage: dict) -> bool:
+        listed = [key for entry in stage.get("params", []) for key in ([entry] if isinstance(entry, str) else
+                                                                       [k for keys in entry.values() for k in keys])]
+        return any(param == key or param.startswith(key + ".") for key in listed)
+
+    made_by = {next(iter(out)) if isinstance(out, dict) else out: name for name, stage in stages.items()
+               for out in [*stage.get("outs", []), *stage.get("metrics", []), *stage.get("plots", [])]}
+    rerun = {name for name, stage in stages.items() if reads(stage)}
+    for name, stage in stages.items():  # dvc.yaml lists a stage after what it depends on
+        if any(maker in rerun for dep in stage.get("deps", []) for out, maker in made_by.items()
+               if dep == out or dep.startswith(out + "/")):
+            rerun.add(name)
+    return [name for name in stages if name in rerun]
+
+
+def measured(copy: Path, stages: dict, results: list[dict]) -> dict:
+    """What the run measured: the commit of the code copied, each stage's code deps with the md5 the copy's
+    `dvc.lock` gave them, and the walkthrough experiment's stages and seconds."""
+    lock = yaml.safe_load((copy / "dvc.lock").read_text())["stages"]
+    seconds = {result["stage"]: result["seconds"] for result in results}
+    again = reruns(stages, EXPERIMENT_PARAM)
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True).stdout.strip()
+    return {"commit": commit,
+            "code": {name: {dep["path"]: dep["md5"] for dep in entry.get("deps", []) if dep["path"].startswith("pipeline/")}
+                     for name, entry in sorted(lock.items())},
+            "experiment": {"param": EXPERIMENT_PARAM, "stages": again,
+                           "seconds": round(sum(seconds.get(name, 0.0) for name in again), 1)}}
 
 
 def machine() -> dict:
@@ -92,6 +130,7 @@ def main() -> None:
             "workers": params.get("compute", {}).get("workers"),
             "total_seconds": round(total, 1),
             "stages": results,
+            **measured(copy, yaml.safe_load((copy / "dvc.yaml").read_text())["stages"], results),
         }
         io.write_json(report, args.out)
         print(f"fresh dvc repro: {total / 60:.1f} min; written to {args.out}")

@@ -3,11 +3,13 @@ picture found, every module of the package in the layout, and a layout that foll
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from pathlib import Path
 
 import pytest
+import yaml
 
 from pipeline import io
 from pipeline.bench.runs import declared_runs
@@ -128,3 +130,32 @@ def test_the_generated_sections_are_written_where_they_are_held(tmp_path: Path) 
     assert sorted(changed) == sorted(tmp_path / source.relative_to(REPOSITORY) for source in empty)
     for source in empty:
         assert (tmp_path / source.relative_to(REPOSITORY)).read_text() == source.read_text()
+
+
+def test_a_measured_figure_typed_in_the_readmes_prose_is_refused_naming_its_line(tmp_path: Path) -> None:
+    """A figure planted in hand-written prose (the kind that contradicted its table: "rejects 90.3 %" beside a
+    generated 92.1 %) stops `readme`, naming the line; the same figure inside a generated section or in code
+    is not prose; the committed README has none."""
+    assert readme.prose_figures(README.read_text()) == []
+    planted = README.read_text().replace("## What it found\n", "## What it found\n\nThe autoencoder rejects "
+                                         "90.3 % of the false windows.\n", 1)
+    (tmp_path / "README.md").write_text(planted)
+    (tmp_path / "docs").mkdir()
+    with pytest.raises(io.InputError, match=r"README.md: a measured figure .* line \d+: 'The autoencoder rejects 90.3"):
+        readme.update_documents(tmp_path / "README.md", tmp_path / "docs", REPOSITORY / "reports",
+                                REPOSITORY / "pipeline", DECLARED, check=True)
+    assert readme.prose_figures("took 47 minutes\n`took 47 minutes`\n```\n47 min\n```\n"
+                                f"{readme.RUN_START}\n47 min\n{readme.RUN_END}\n") == [(1, "took 47 minutes")]
+    assert readme.prose_figures("Python 3.11, torch 2.13.0, 2 CPU cores, issue 29, at most 400 lines\n") == []
+
+
+def test_the_committed_run_times_measured_the_code_of_the_committed_run() -> None:
+    """reports/pipeline_speed.json (benchmarks/bench_pipeline.py) records each stage's code as its run hashed
+    it; the committed dvc.lock must hash it the same, or the README's times are older than the code they
+    measure: rerun the benchmark, which makes the committed run too."""
+    speed = json.loads((REPOSITORY / "reports" / "pipeline_speed.json").read_text())
+    lock = yaml.safe_load((REPOSITORY / "dvc.lock").read_text())["stages"]
+    assert "code" in speed, "reports/pipeline_speed.json predates the code record: rerun benchmarks/bench_pipeline.py"
+    stale = [name for name, code in speed["code"].items()
+             if code != {dep["path"]: dep["md5"] for dep in lock[name].get("deps", []) if dep["path"].startswith("pipeline/")}]
+    assert not stale, f"stages timed on other code than dvc.lock's: {stale}; rerun benchmarks/bench_pipeline.py"
