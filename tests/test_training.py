@@ -368,6 +368,9 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
     history = {name: [m.value for m in sorted(trained.get_metric_history(run.info.run_id, name),
                                               key=lambda m: m.step)] for name in ("train_loss", "val_loss")}
     assert len(history["train_loss"]) == len(history["val_loss"]) == CLI_EPOCHS
+    for name in ("train_loss", "val_loss"):  # drawn against the epoch, not the optimiser's step count
+        assert sorted(m.step for m in trained.get_metric_history(run.info.run_id, name)) == list(range(CLI_EPOCHS))
+    assert "epoch" not in run.data.metrics
     csv = np.loadtxt(chain / "reports" / "loss" / f"{kind}.csv", delimiter=",", skiprows=1, ndmin=2)
     np.testing.assert_allclose(csv[:, 1:], np.column_stack([history["train_loss"], history["val_loss"]]),
                                rtol=1e-6)

@@ -60,6 +60,12 @@ class TrainingLogger(MLFlowLogger):
             return None
 
     def log_metrics(self, metrics: dict[str, float], step: int | None = None) -> None:
+        """Log `metrics`; those Lightning logs with the epoch (every training metric here is one value per
+        epoch: the losses, `pipeline.learning.fit`) at the epoch as their MLflow step, so the UI draws the loss
+        curves against the epoch, not against the optimiser's step count; the epoch itself is not logged."""
+        if "epoch" in metrics:  # Lightning adds it to what it logs during a fit
+            step = int(metrics["epoch"])
+            metrics = {name: value for name, value in metrics.items() if name != "epoch"}
         self.write("logging metrics", super().log_metrics, metrics, step)
 
     def log_hyperparams(self, params: dict[str, Any]) -> None:  # type: ignore[override]
