@@ -118,7 +118,8 @@ def main() -> None:
             if code != 0:
                 raise SystemExit(f"stage {stage} failed (exit {code}); its output:\n{log.read_text()[-4000:]}")
             total += seconds
-            results.append({"stage": stage, "seconds": round(seconds, 1), "peak_memory_mib": round(peak)})
+            results.append({"stage": stage, "seconds": round(seconds, 1), "peak_memory_mib": round(peak),
+                            "load_1min": round(os.getloadavg()[0], 2)})  # other work on the machine shows here
             print(f"{stage:18s} {seconds:7.1f} s  {peak:6.0f} MiB  (total {total / 60:.1f} min)", flush=True)
         params = yaml.safe_load((copy / "params.yaml").read_text())
         report = {

@@ -224,15 +224,16 @@ def speed_section(reports: Path) -> str:
         return "\n".join([SPEED_START, "", "No measurement yet: run `python benchmarks/bench_pipeline.py`.", "",
                           SPEED_END])
     speed = json.loads(path.read_text())
-    rows = [f"| `{stage['stage']}` | {stage['seconds']:.1f} s | {stage['peak_memory_mib']:,} MiB |"
+    rows = [f"| `{stage['stage']}` | {stage['seconds']:.1f} s | {stage['peak_memory_mib']:,} MiB | "
+            f"{stage['load_1min'] if 'load_1min' in stage else 'not recorded'} |"
             for stage in speed["stages"]]  # a list, in the order the stages ran
     cpu = speed["machine"]
     return "\n".join([
         SPEED_START, "",
         f"`{speed['command']}` ({speed['date']}; {cpu['cpus']} CPUs, Python {cpu['python']}, torch {cpu['torch']}, "
         f"`compute.workers: {speed['workers']}`): {speed['what']}.", "",
-        "| stage | wall time | peak memory |", "|---|---|---|", *rows,
-        f"| **fresh `dvc repro`** | **{speed['total_seconds'] / 60:.1f} min** | |", "", SPEED_END])
+        "| stage | wall time | peak memory | load at its end (1 min) |", "|---|---|---|---|", *rows,
+        f"| **fresh `dvc repro`** | **{speed['total_seconds'] / 60:.1f} min** | | |", "", SPEED_END])
 
 
 def _speed(reports: Path) -> dict | None:
