@@ -124,6 +124,11 @@ def _readme(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plots_template(args: argparse.Namespace) -> None:
+    from pipeline.reports.plots_page import write_template
+    write_template(Path(args.out))
+
+
 def _params_reference(args: argparse.Namespace) -> int:
     from pipeline.reports.params_reference import write_reference
     load_params(args.params)  # a reference is written of valid params only
@@ -232,6 +237,11 @@ COMMANDS = {
                          "(pipeline/params/): every key's type, bounds, value in params.yaml and doc.",
                          "python -m pipeline params-reference --out docs/params.md --check",
                          ["params", "reference"]),
+    "plots-template": (_plots_template, "Write the HTML template `dvc plots show` reads (.dvc/config's "
+                       "plots.html_template): Vega, Vega-Lite and Vega-Embed inline, so the page needs no network "
+                       "(the file is committed; rerun after upgrading vl-convert-python).",
+                       "python -m pipeline plots-template --out .dvc/plots/offline.html",
+                       [("out", ".dvc/plots/offline.html")]),
 }
 
 

@@ -55,6 +55,11 @@ def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
     result = subprocess.run(["bash", "-e", "-x", "-c", script], cwd=repository, env=environment(),
                             capture_output=True, text=True)
     assert result.returncode == 0, f"the walkthrough failed at the last '+' command:\n{result.stderr[-6000:]}"
+    page = (repository / "dvc_plots" / "index.html").read_text()  # readable offline: no script fetched
+    assert "vegaEmbed('#network_loss_per_epoch'" in page and "<script src" not in page and "cdn." not in page
+    untracked = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=repository,
+                               capture_output=True, text=True, check=True).stdout
+    assert not [line for line in untracked.splitlines() if line.startswith("??")], untracked  # outputs ignored
 
     client = mlflow.MlflowClient(f"sqlite:///{repository / 'mlflow.db'}")
     experiment = client.get_experiment_by_name(params["training"]["experiment"])
