@@ -14,8 +14,8 @@ the table's length U:
 | `association` | (U,) str | `start`, or the label of the gate that won (`radius` for young tracks, else the method) |
 | `association_error` | (U,) | the normalised error of the association, NaN for a start |
 | `position_covariance` | (U, 3, 3) m^2 | of the position; a start's is its plot's measurement covariance; NaN for estimators that give none |
-| `velocity` | (U, 3) m/s | the track's ECEF velocity after the update, where the run records it (`Updates.with_velocity`); NaN for a start (unknown from one plot), a run that does not record it or an estimator that has none |
-| `velocity_covariance` | (U, 3, 3) m^2/s^2 | of the velocity; NaN where the velocity is, or the estimator gives none |
+| `velocity` | (U, 3) m/s | only where the run records velocities (`Updates.with_velocity`): the track's ECEF velocity after the update; NaN for a start (unknown from one plot) |
+| `velocity_covariance` | (U, 3, 3) m^2/s^2 | with `velocity`: its covariance; NaN for a start, or where the estimator gives none |
 
 An *association to a confirmed track* (`confirmed_associations`) is an update that is not a start
 and after which the track's weight is confirmed by the track management rule; the metrics, OSPA,
@@ -31,7 +31,8 @@ from pipeline.tracker.management import TrackManagement
 
 START = "start"
 COLUMNS = ("track_id", "time_unix_s", "plot_id", "radar_id", "x_ecef_m", "y_ecef_m", "z_ecef_m", "weight",
-           "association", "association_error", "position_covariance", "velocity", "velocity_covariance")
+           "association", "association_error", "position_covariance")  # every run's; `velocity` and its
+VELOCITY_COLUMNS = ("velocity", "velocity_covariance")                  # covariance where it records them
 UNKNOWN_COVARIANCE = np.full((3, 3), np.nan)
 UNKNOWN_VELOCITY = np.full(3, np.nan)
 
@@ -77,15 +78,14 @@ class Updates:
         position = np.asarray(self._position, dtype=float).reshape(-1, 3)
         covariance = (np.asarray(self._covariance, dtype=float).reshape(-1, 3, 3) if self.with_covariance
                       else np.broadcast_to(UNKNOWN_COVARIANCE, (len(rows), 3, 3)).copy())
-        velocity = (np.asarray(self._velocity, dtype=float).reshape(-1, 3) if self.with_velocity
-                    else np.broadcast_to(UNKNOWN_VELOCITY, (len(rows), 3)).copy())
-        velocity_covariance = (np.asarray(self._velocity_covariance, dtype=float).reshape(-1, 3, 3)
-                               if self.with_velocity else np.broadcast_to(UNKNOWN_COVARIANCE, (len(rows), 3, 3)).copy())
+        velocities = {"velocity": np.asarray(self._velocity, dtype=float).reshape(-1, 3),
+                      "velocity_covariance": np.asarray(self._velocity_covariance, dtype=float).reshape(-1, 3, 3)
+                      } if self.with_velocity else {}
         return {"track_id": np.asarray(self._track_id, dtype=np.int64), "time_unix_s": plots.time[rows],
                 "plot_id": plots.plot_id[rows], "radar_id": plots.radar_id[rows], "x_ecef_m": position[:, 0],
                 "y_ecef_m": position[:, 1], "z_ecef_m": position[:, 2], "weight": np.asarray(self._weight, dtype=float),
                 "association": np.asarray(self._association, dtype=str), "association_error": np.asarray(self._error, dtype=float),
-                "position_covariance": covariance, "velocity": velocity, "velocity_covariance": velocity_covariance}
+                "position_covariance": covariance, **velocities}
 
 
 def confirmed_associations(updates: dict[str, np.ndarray], management: TrackManagement) -> np.ndarray:
