@@ -211,8 +211,13 @@ def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -
         return "\n".join([HEADLINE_START, "", "No comparison yet: run `dvc repro compare`.", "", HEADLINE_END])
     comparison = json.loads(path.read_text())
     trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
-    return "\n".join([HEADLINE_START, "", *comparison_tables.verdict(trackers, comparison["holdout"],
-                                                                    _tracker_intervals(comparison)),
+    intervals = _tracker_intervals(comparison)
+    caveat = [] if intervals is not None else [
+        "**These verdicts have no intervals:** the committed run predates them (one draw of noise and clutter per "
+        "route), so a difference of a few metres may be noise; a run of today's code backs each with its paired "
+        "interval.", ""]
+    return "\n".join([HEADLINE_START, "", *caveat, *comparison_tables.verdict(trackers, comparison["holdout"],
+                                                                              intervals),
                       "", f"![{COMPARISON_PICTURE}]({_link(reports / 'comparison.png', folder)})", "",
                       HEADLINE_END])
 
@@ -246,6 +251,12 @@ def run_time_section(reports: Path) -> str:
     speed = _speed(reports)
     if speed is None:
         return "\n".join([RUN_START, "No measurement yet: run `python benchmarks/bench_pipeline.py`.", RUN_END])
+    if "code" not in speed:  # a report from before bench_pipeline recorded what it measured
+        return "\n".join([RUN_START,
+                          f"The last measured fresh run ({speed['date']}, {len(speed['stages'])} stages, "
+                          f"{speed['total_seconds'] / 60:.0f} minutes) predates today's pipeline and the record of "
+                          "the code it timed, so how long a fresh run of today's code takes is not known: "
+                          "`python benchmarks/bench_pipeline.py` measures it ([Speed](docs/speed.md)).", RUN_END])
     seconds = {stage["stage"]: stage["seconds"] for stage in speed["stages"]}
     evaluation = sum(seconds.get(name, 0.0) for name in EVALUATION_STAGES)
     commit = f", commit {speed['commit'][:10]}" if speed.get("commit") else ""
