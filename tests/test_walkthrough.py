@@ -52,7 +52,9 @@ def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
                               walkthrough_script((repository / "README.md").read_text()), flags=re.MULTILINE)
     assert servers == 1
 
-    result = subprocess.run(["bash", "-e", "-x", "-c", script], cwd=repository, env=environment(),
+    identity = {"GIT_AUTHOR_NAME": "test", "GIT_AUTHOR_EMAIL": "test@example.invalid",
+                "GIT_COMMITTER_NAME": "test", "GIT_COMMITTER_EMAIL": "test@example.invalid"}  # the baseline commit
+    result = subprocess.run(["bash", "-e", "-x", "-c", script], cwd=repository, env={**environment(), **identity},
                             capture_output=True, text=True)
     assert result.returncode == 0, f"the walkthrough failed at the last '+' command:\n{result.stderr[-6000:]}"
     page = (repository / "dvc_plots" / "index.html").read_text()  # readable offline: no script fetched
