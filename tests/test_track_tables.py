@@ -20,7 +20,8 @@ from pipeline.association.track_association import positive_definite
 from pipeline.association.track_tables import COVARIANCE_CEILING_M2, track_table
 from pipeline.geometry import geodesy
 from pipeline.io import InputError
-from pipeline.tracker.recording import COVARIANCE_COLUMNS, TRACK_SCHEMA
+from pipeline.tracker.recording import (COVARIANCE_COLUMNS, TRACK_SCHEMA, VELOCITY_COLUMNS,
+                                       VELOCITY_COVARIANCE_COLUMNS)
 from tests import tracker_fixtures as tf
 
 SITE = (60.3, 25.0, 60.0)
@@ -46,7 +47,8 @@ def updates(track_id: int, start_enu: tuple[float, float], velocity_enu: tuple[f
             "longitude_deg": longitude, "altitude_m": altitude,
             "range_m": np.linalg.norm(ecef - SITE_ECEF, axis=1), "weight": np.ones(count),
             "status": np.full(count, "confirmed"), "association": np.full(count, "gnn"),
-            "association_error": np.zeros(count), **covariance}
+            "association_error": np.zeros(count), **covariance,
+            **{name: np.full(count, np.nan) for name in (*VELOCITY_COLUMNS, *VELOCITY_COVARIANCE_COLUMNS)}}
 
 
 def table(*parts: dict[str, np.ndarray]) -> pa.Table:
