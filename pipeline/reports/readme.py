@@ -279,10 +279,10 @@ def experiment_section(reports: Path) -> str:
     stages = experiment["stages"]
     return "\n  ".join([EXPERIMENT_START,
                         f"A change of `{experiment['param']}` reruns {len(stages)} stages: "
-                      f"{', '.join(f'`{name}`' for name in stages)}; in the fresh run measured ({speed['date']}) "
-                      f"they took **{experiment['seconds'] / 60:.0f} minutes**. `-S evaluate.seeds=1` shortens the "
-                      "evaluations, without intervals worth the name.",
-                      EXPERIMENT_END])
+                        f"{', '.join(f'`{name}`' for name in stages)}; in the fresh run measured ({speed['date']}) "
+                        f"they took **{experiment['seconds'] / 60:.0f} minutes**. `-S evaluate.seeds=1` shortens the "
+                        "evaluations, without intervals worth the name.",
+                        EXPERIMENT_END])
 
 
 def prose_figures(text: str) -> list[tuple[int, str]]:

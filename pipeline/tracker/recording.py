@@ -156,7 +156,7 @@ def _track_table(updates: dict[str, np.ndarray], scenario_id: int, sites: Mappin
         "status": [management.status(w) for w in updates["weight"]],
         "association": updates["association"].astype(str), "association_error": updates["association_error"],
         **covariance_columns(updates["position_covariance"]),
-        **velocity_columns(updates.get("velocity", np.full((count, 3), np.nan)), lat, lon),
-        **covariance_columns(updates.get("velocity_covariance", np.full((count, 3, 3), np.nan)),
-                             VELOCITY_COVARIANCE_COLUMNS),
+        **velocity_columns(updates["velocity"] if "velocity" in updates else np.full((count, 3), np.nan), lat, lon),
+        **covariance_columns(updates["velocity_covariance"] if "velocity" in updates
+                             else np.full((count, 3, 3), np.nan), VELOCITY_COVARIANCE_COLUMNS),
     }, schema=TRACK_SCHEMA)
