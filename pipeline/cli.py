@@ -94,11 +94,12 @@ def _evaluate_scenes(args: argparse.Namespace) -> None:
 
 
 def _track(args: argparse.Namespace) -> None:
-    from pipeline.stages.track_command import run_track
+    from pipeline.stages.track_command import SystemTrackOutput, run_track
     run_track(load_params(args.params), Path(args.plots) if args.plots else None,
               Path(args.radar) if args.radar else None, [Path(p) for p in args.asterix or []],
               args.date, args.method, args.window, Path(args.models),
-              Path(args.out), args.management, args.confirmed_only)
+              Path(args.out), args.management, args.confirmed_only,
+              SystemTrackOutput(Path(args.cat062), args.sac, args.sic) if args.cat062 else None)
 
 
 def _associate(args: argparse.Namespace) -> None:
@@ -219,7 +220,8 @@ COMMANDS = {
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "
               "--radar data/simulated/test/radar.parquet --method via --window 4000 --out tracks.parquet\n"
-              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --management m_of_n --out tracks.parquet",
+              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --management m_of_n --out tracks.parquet\n"
+              "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --out tracks.parquet --cat062 tracks.ast",
               ["params", "recording", "models"]),
     "associate": (_associate, "Associate two users' track tables (what `track` writes, classical methods: they give "
                   "covariances) at common times and fuse the pairs by covariance intersection; writes the pairs "
@@ -301,6 +303,12 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--confirmed-only", action="store_true",
                              help="write only the updates of confirmed tracks (the summary still counts every "
                                   "update by status)")
+        command.add_argument("--cat062", help="also write the updates as ASTERIX CAT062 system tracks to this file "
+                                              "(I062/100 about the first radar's site; see docs/tracking-a-recording.md)")
+        command.add_argument("--sac", type=int, default=0, help="with --cat062: the tracker's SAC, I062/010 "
+                                                                "(default: %(default)s)")
+        command.add_argument("--sic", type=int, default=1, help="with --cat062: the tracker's SIC, I062/010 "
+                                                                "(default: %(default)s)")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),
                              help="the two users' track tables (Parquet, the schema `track` writes)")

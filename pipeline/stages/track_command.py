@@ -32,6 +32,7 @@ from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.recordings import asterix_io, plot_table, streamed_recording
 from pipeline.recordings.plot_table import NO_SCENARIO
+from pipeline.surveillance import cat062
 from pipeline.tracker.loading import model_paths
 from pipeline.tracker.recording import TRACK_SCHEMA, tracked_parts
 from pipeline.tracker.refusals import RefusalCounts, warn_refusals
@@ -100,9 +101,20 @@ def how_made(method: str, window_m: float, params: Params, models_dir: Path, con
             "models": {str(path): data_hash(path) for _, path in sorted(paths.items())}}
 
 
+@dataclasses.dataclass(frozen=True)
+class SystemTrackOutput:
+    """Where `track` also writes its updates as ASTERIX CAT062 system tracks, and the SAC/SIC (I062/010) of the
+    tracker that sends them (`pipeline.surveillance.cat062`)."""
+
+    path: Path
+    sac: int = 0
+    sic: int = 1
+
+
 def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, asterix_paths: list[Path],
               first_date: date | None, method: str, window_m: float, models_dir: Path, out: Path,
-              management: str | None = None, confirmed_only: bool = False) -> None:
+              management: str | None = None, confirmed_only: bool = False,
+              system_tracks: SystemTrackOutput | None = None) -> None:
     """Track a recording into `out` (TRACK_SCHEMA, row groups of TRACK_ROW_GROUP_ROWS updates; with
     `confirmed_only` only the updates of confirmed tracks) and its summary beside it (`summary_path`), under
     the track management rule `management` (one of `registry.MANAGEMENT`; None: params'
@@ -110,11 +122,19 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
     `compute.chunk_plots` plots at a time: a Parquet recording is read from its file as it goes
     (`streamed_recording`), one out of time order sorted first into a temporary folder beside `out`
     (in its nearest existing folder), removed at the end; an ASTERIX recording is decoded whole
-    first. Nothing is written on an error, nor when `out` or its summary would replace an input
+    first. With `system_tracks`, the written updates go also to a CAT062 file, about the site of the
+    recording's first radar (the lowest id) as system reference point; it is made from the updates held in
+    memory at the end. Nothing is written on an error, nor when an output would replace an input
     (`io.check_outputs`)."""
     inputs = {"--plots": [plots_path] if plots_path else [], "--radar": [radar_path] if radar_path else [],
               "--asterix": asterix_paths}
-    io.check_outputs(inputs, {"--out": out, "--out's summary": summary_path(out)})
+    outputs = {"--out": out, "--out's summary": summary_path(out)}
+    if system_tracks is not None:
+        outputs["--cat062"] = system_tracks.path
+        for name, value in (("--sac", system_tracks.sac), ("--sic", system_tracks.sic)):
+            if not 0 <= value <= 255:
+                raise io.InputError(f"{name} {value} is not a byte (0 to 255)")
+    io.check_outputs(inputs, outputs)
     if management is not None:
         rules = dataclasses.replace(params.tracker.management, rule=management)
         params = dataclasses.replace(params, tracker=dataclasses.replace(params.tracker, management=rules))
@@ -134,17 +154,19 @@ def run_track(params: Params, plots_path: Path | None, radar_path: Path | None, 
         made = how_made(method, window_m, params, models_dir, confirmed_only)
         log.info("track: method %s, window %g m, track management %s, models %s", method, window_m,
                  made["management"], ", ".join(made["models"]) or "none but params")
-        _write_tracks(recording, made, params, models_dir, out, plots_path or ", ".join(map(str, asterix_paths)))
+        _write_tracks(recording, made, params, models_dir, out, plots_path or ", ".join(map(str, asterix_paths)),
+                      system_tracks)
 
 
 def _write_tracks(recording: streamed_recording.RecordingParts, made: dict, params: Params, models_dir: Path,
-                  out: Path, source: Path | str) -> None:
+                  out: Path, source: Path | str, system_tracks: SystemTrackOutput | None) -> None:
     """`run_track`'s work once the recording (read from `source`) is open, made as `made` says (`how_made`)."""
     method, window_m = made["method"], made["window_m"]
     summary = RunSummary(made, len(recording), recording.plot_counts, recording.skipped)
     if not len(recording):
         log.warning("track: no plots to track in %s: the output will hold no track update", source)
     progress = progress_logger("track: plots tracked", params.progress_every_s)
+    held = []  # the written updates, for CAT062
     with io.parquet_chunks(out, TRACK_SCHEMA, TRACK_ROW_GROUP_ROWS) as written:
         for _, part, first in tracked_parts(recording.scenarios(params.chunk_plots), recording.radars, method,
                                              window_m, params, models_dir, summary.refusals):
@@ -153,8 +175,13 @@ def _write_tracks(recording: streamed_recording.RecordingParts, made: dict, para
                 part = part.filter(pa.compute.equal(part.column("status"), "confirmed"))
             written.add(part, new_chunk=first)
             summary.written += part.num_rows
+            if system_tracks is not None:
+                held.append(part)
             progress(summary.updates, len(recording))
         report = summary.report()
+        if system_tracks is not None:
+            _write_system_tracks(pa.concat_tables(held) if held else TRACK_SCHEMA.empty_table(), recording.radars,
+                                 system_tracks)
         io.write_json(report, summary_path(out))
     warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
     skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
@@ -167,6 +194,16 @@ def _write_tracks(recording: streamed_recording.RecordingParts, made: dict, para
              100.0 * confirmed / max(report["track_updates"], 1), _counted(report["confirmed_tracks"], "confirmed track"),
              _counted(seen, "radar"), f" (no plot tracked of radar {', '.join(unseen)})" if unseen else "", out,
              "confirmed updates only" if made["confirmed_only"] else "every update", summary_path(out))
+
+
+def _write_system_tracks(tracks: pa.Table, radars: Mapping, output: SystemTrackOutput) -> None:
+    """`tracks` as CAT062 to `output.path`, about the site of the lowest radar id (module `cat062`)."""
+    site = radars[min(radars)] if radars else None
+    reference = cat062.SystemReference(site.latitude_deg if site else 0.0, site.longitude_deg if site else 0.0)
+    cat062.write_cat062(tracks, output.path, output.sac, output.sic, reference)
+    log.info("track: %s CAT062 system track records (SAC %d, SIC %d; I062/100 about %.6f N, %.6f E, the site of "
+             "radar %s) -> %s", tracks.num_rows, output.sac, output.sic, reference.latitude_deg,
+             reference.longitude_deg, min(radars) if radars else "none", output.path)
 
 
 def _counted(count: int, noun: str) -> str:

@@ -1,0 +1,1 @@
+"""The yardsticks of air-traffic surveillance: CAT062 system tracks out and in, and the scorecard."""
