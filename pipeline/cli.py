@@ -102,6 +102,13 @@ def _track(args: argparse.Namespace) -> None:
               SystemTrackOutput(Path(args.cat062), args.sac, args.sic) if args.cat062 else None)
 
 
+def _score(args: argparse.Namespace) -> None:
+    from pipeline.stages.score_command import run_score
+    run_score(load_params(args.params), Path(args.tracks) if args.tracks else None,
+              Path(args.cat062) if args.cat062 else None, args.date, tuple(args.reference) if args.reference else None,
+              Path(args.truth), args.scenario, args.update_interval, Path(args.out))
+
+
 def _associate(args: argparse.Namespace) -> None:
     from pipeline.stages.associate_command import run_associate
     run_associate(load_params(args.params), [Path(p) for p in args.tracks], [Path(p) for p in args.radar],
@@ -223,6 +230,14 @@ COMMANDS = {
               "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --management m_of_n --out tracks.parquet\n"
               "  python -m pipeline track --asterix scenario_0.ast --date 2026-06-01 --out tracks.parquet --cat062 tracks.ast",
               ["params", "recording", "models"]),
+    "score": (_score, "The surveillance scorecard (probability of update, long gaps, position and velocity errors, "
+              "large-error shares, false and extra tracks, swaps, initiation) of a tracker's output, our update table "
+              "or ASTERIX CAT062, against a truth table, beside the ECAC and ED-129C reference figures.",
+              "python -m pipeline score --tracks tracks.parquet --truth data/simulated/test/truth.parquet "
+              "--out scorecard.json\n"
+              "  python -m pipeline score --cat062 tracks.ast --date 2026-06-01 --reference 60.1 24.9 "
+              "--truth truth.parquet --scenario 5 --out scorecard.json",
+              ["params", "scoring"]),
     "associate": (_associate, "Associate two users' track tables (what `track` writes, classical methods: they give "
                   "covariances) at common times and fuse the pairs by covariance intersection; writes the pairs "
                   "and the fused air picture (Parquet).",
@@ -269,6 +284,17 @@ def _window_m(text: str) -> float:
     return value
 
 
+def _interval_s(text: str) -> float:
+    """--update-interval checked where it is parsed: a finite time above 0 (a usage error, exit 2, otherwise)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an update interval: a finite time above 0 in seconds")
+    return value
+
+
 def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:
     if isinstance(option, tuple) and option[0] == "kind":
         command.set_defaults(kind=option[1])  # a command that trains one piece
@@ -309,6 +335,19 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                                                                 "(default: %(default)s)")
         command.add_argument("--sic", type=int, default=1, help="with --cat062: the tracker's SIC, I062/010 "
                                                                 "(default: %(default)s)")
+    elif option == "scoring":
+        command.add_argument("--tracks", help="our update table (Parquet, what `track` writes)")
+        command.add_argument("--cat062", help="or ASTERIX CAT062 system tracks (ours or another tracker's)")
+        command.add_argument("--date", type=_iso_date, help="with --cat062: UTC date of its first record, YYYY-MM-DD")
+        command.add_argument("--reference", type=float, nargs=2, metavar=("LAT", "LON"),
+                             help="with --cat062: its system reference point (deg), for its velocities (I062/185); "
+                                  "`track --cat062` logs it")
+        command.add_argument("--truth", required=True, help="truth Parquet: target_id, time_unix_s, x/y/z_ecef_m "
+                                                            "(optionally scenario_id, in_coverage)")
+        command.add_argument("--scenario", type=int, help="score this scenario only (default: every scenario)")
+        command.add_argument("--update-interval", type=_interval_s,
+                             help="the radar's update interval, s (default: 60 / params' radar.rotation_rpm)")
+        command.add_argument("--out", required=True, help="output JSON (and Markdown beside it, <stem>.md)")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),
                              help="the two users' track tables (Parquet, the schema `track` writes)")

@@ -4,6 +4,7 @@ libasterix is generated from), and reads back through our own reader."""
 
 from __future__ import annotations
 
+import logging
 from datetime import date, datetime, timezone
 from pathlib import Path
 
@@ -184,3 +185,57 @@ def test_track_writes_its_updates_as_cat062_beside_the_table(tmp_path: Path) -> 
     arguments[arguments.index("--sac") + 1] = "256"
     (tmp_path / "tracks.ast").unlink()
     assert cli.main(arguments) == 2 and not (tmp_path / "tracks.ast").exists()
+
+
+def test_score_of_a_cat062_file_equals_score_of_the_same_tracks_as_our_table(tmp_path: Path) -> None:
+    """Tracks made by hand around a truth: `score --tracks` and `score --cat062` of what `write_cat062` made of
+    the same table give the same scorecard, to CAT062's resolution (0.6 m in position, 0.25 m/s in velocity)."""
+    import json
+
+    from pipeline import cli
+    from tests import tracker_fixtures as tf
+    from tests.project import write_params
+
+    times = MIDNIGHT + 36000.0 + 6.0 * np.arange(40)
+    truth_table = track_table({0: (0.0, 0.0)}, times)
+    table = track_table({1: (2400.0, 150.0)}, times[2:], status=["tentative"] + ["confirmed"] * 37)  # from scan 2
+    truth = pa.table({"target_id": pa.array(np.zeros(len(times), np.int32)),
+                      "time_unix_s": truth_table.column("time_unix_s"), "x_ecef_m": truth_table.column("x_ecef_m"),
+                      "y_ecef_m": truth_table.column("y_ecef_m"), "z_ecef_m": truth_table.column("z_ecef_m")})
+    pa.parquet.write_table(truth, tmp_path / "truth.parquet")
+    pa.parquet.write_table(table, tmp_path / "tracks.parquet")
+    cat062.write_cat062(table, tmp_path / "tracks.ast", 1, 2, REFERENCE)
+    params = str(write_params(tf.params_tree(None), tmp_path / "params.yaml"))
+    common = ["score", "--params", params, "--truth", str(tmp_path / "truth.parquet"), "--update-interval", "6"]
+    assert cli.main([*common, "--tracks", str(tmp_path / "tracks.parquet"), "--out", str(tmp_path / "a.json")]) == 0
+    assert cli.main([*common, "--cat062", str(tmp_path / "tracks.ast"), "--date", "2026-06-01", "--reference", "52",
+                     "4", "--out", str(tmp_path / "b.json")]) == 0
+    a, b = (json.loads((tmp_path / name).read_text())["scorecard"] for name in ("a.json", "b.json"))
+    assert a.keys() == b.keys()
+    for name in a:
+        assert b[name] == pytest.approx(a[name], abs=1.0, nan_ok=True), name
+    assert a["across_track_rms_m"] == pytest.approx(150.0, abs=1.0) and a["initiation_mean_s"] == 18.0
+    assert "| single-radar | position_error_mean_m | 150 | <= 240.8 | pass |" in (tmp_path / "a.md").read_text()
+
+
+def test_score_refuses_the_wrong_day_and_a_truth_without_its_columns(tmp_path: Path, caplog) -> None:
+    from pipeline import cli
+    from tests import tracker_fixtures as tf
+    from tests.project import write_params
+
+    times = MIDNIGHT + 36000.0 + 6.0 * np.arange(10)
+    table = track_table({1: (0.0, 0.0)}, times)
+    cat062.write_cat062(table, tmp_path / "tracks.ast", 1, 2, REFERENCE)
+    truth = pa.table({"target_id": pa.array(np.zeros(10, np.int32)), "time_unix_s": table.column("time_unix_s"),
+                      "x_ecef_m": table.column("x_ecef_m"), "y_ecef_m": table.column("y_ecef_m"),
+                      "z_ecef_m": table.column("z_ecef_m")})
+    pa.parquet.write_table(truth, tmp_path / "truth.parquet")
+    pa.parquet.write_table(truth.drop(["z_ecef_m"]), tmp_path / "flat.parquet")
+    params = str(write_params(tf.params_tree(None), tmp_path / "params.yaml"))
+    common = ["score", "--params", params, "--cat062", str(tmp_path / "tracks.ast"), "--out", str(tmp_path / "s.json")]
+    with caplog.at_level(logging.ERROR):
+        assert cli.main([*common, "--date", "2026-06-02", "--truth", str(tmp_path / "truth.parquet")]) == 2
+        assert cli.main([*common, "--date", "2026-06-01", "--truth", str(tmp_path / "flat.parquet")]) == 2
+    assert "no confirmed update within the time of" in caplog.text and "another day (--date)" in caplog.text
+    assert "flat.parquet" in caplog.text and "z_ecef_m" in caplog.text
+    assert not (tmp_path / "s.json").exists() and not (tmp_path / "s.md").exists()

@@ -31,7 +31,7 @@ with these items:
   and COV (the sign of the x-y covariance times the square root of its size) in the system
   plane, APW (latitude, longitude) and ABA (barometric altitude) from the position covariance,
   ATV (x, y) and ARC (rate of climb) from the velocity covariance. A covariance is carried into
-  the system plane by the projection's Jacobian (`_plane_jacobians`).
+  the system plane by the projection's Jacobian (`plane_jacobians`).
 
 A value beyond its item's range (an accuracy wider than one octet's 63.75 m/s, a track older than
 63.75 s) is written as the item's largest value: what the standard's fixed widths allow. Reading
@@ -102,7 +102,7 @@ def _quantised(values: np.ndarray, item: str) -> np.ndarray:
     return np.minimum(values, LARGEST[item]) if item in LARGEST else values
 
 
-def _plane_jacobians(transformer, ecef: np.ndarray) -> np.ndarray:
+def plane_jacobians(transformer, ecef: np.ndarray) -> np.ndarray:
     """(U, 2, 3): d(x, y of the system plane) / d(ECEF), by 1 m steps along each ECEF axis (the
     projection bends over hundreds of kilometres; over a metre it is linear to far below the LSB)."""
     base = np.stack(transformer.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])[:2], axis=1)
@@ -153,7 +153,7 @@ def records(tracks: pa.Table, sac: int, sic: int, reference: SystemReference) ->
     ecef = np.stack([tracks.column(name).to_numpy() for name in ("x_ecef_m", "y_ecef_m", "z_ecef_m")], axis=1)
     transformer = reference.transformer()
     plane = np.stack(transformer.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])[:2], axis=1)
-    jacobian = _plane_jacobians(transformer, ecef)
+    jacobian = plane_jacobians(transformer, ecef)
     rotation = geodesy.enu_rotations(column["latitude_deg"], column["longitude_deg"])
     position_cov = _symmetric(tracks, ["covariance_xx_m2", "covariance_xy_m2", "covariance_xz_m2",
                                        "covariance_yy_m2", "covariance_yz_m2", "covariance_zz_m2"])
@@ -231,6 +231,19 @@ def _accuracies(plane_cov: np.ndarray, enu_cov: np.ndarray, meridian_m: float, p
                       ("Y", (float(_quantised(np.sqrt(plane_velocity_cov[1, 1]), "ATV")), "m/s")))
         out["ARC"] = (float(_quantised(np.sqrt(enu_velocity_cov[2, 2]) / FEET_PER_MINUTE_MPS, "ARC")), "ft/min")
     return out
+
+
+def plane_velocity_to_ecef(reference: SystemReference, ecef: np.ndarray, vx_mps: np.ndarray, vy_mps: np.ndarray
+                           ) -> np.ndarray:
+    """(U, 3) ECEF velocities, horizontal at each ECEF position (U, 3), whose projections on the system plane
+    about `reference` are (vx, vy) (I062/185): the inverse of `records`' velocity, the plane's Jacobian
+    restricted to the local horizontal inverted (a CAT062 velocity has no vertical part)."""
+    jacobian = plane_jacobians(reference.transformer(), ecef)
+    latitude, longitude, _ = geodesy.ecef_to_geodetic(ecef)
+    rotation = geodesy.enu_rotations(np.atleast_1d(latitude), np.atleast_1d(longitude))
+    horizontal = jacobian @ rotation[:, :2, :].transpose(0, 2, 1)  # (U, 2, 2): (east, north) -> plane
+    east_north = np.linalg.solve(horizontal, np.stack([vx_mps, vy_mps], axis=1)[..., None])[..., 0]
+    return np.einsum("uij,ui->uj", rotation[:, :2, :], east_north)
 
 
 def encode(tracks: pa.Table, sac: int, sic: int, reference: SystemReference) -> bytes:
