@@ -148,3 +148,23 @@ def test_settings_and_truth_out_of_bounds_are_named() -> None:
     blind = Truth(truth.target_id, truth.time_s, truth.position, np.zeros(len(TIMES), bool))
     with pytest.raises(ValueError, match="no target in coverage"):
         scorecard.scorecard(updates_of(1, truth, np.arange(3)), blind, SETTINGS)
+
+
+def test_two_recordings_combined_score_as_one_recording_of_both() -> None:
+    """The bench's units: the parts of two recordings, combined, give what one recording holding both (the second
+    moved far in time, its ids its own) gives."""
+    first_truth, second_truth = straight_truth(0, TIMES), straight_truth(0, TIMES, north_m=500.0, heading_east=False)
+    first = together(updates_of(1, first_truth, np.arange(3, 80)), updates_of(2, first_truth, np.arange(85, 101)))
+    second = updates_of(1, second_truth, np.arange(2, 101), (30.0, -40.0, 0.0))
+    pieces = [scorecard.parts(first, first_truth, SETTINGS), scorecard.parts(second, second_truth, SETTINGS)]
+    shift = 1e7
+    both_truth = joined(first_truth, Truth(second_truth.target_id + 1, second_truth.time_s + shift,
+                                           second_truth.position, second_truth.in_coverage))
+    both = together(first, TrackUpdates(second.track_id + 10, second.time_s + shift, second.position, second.velocity,
+                                        second.confirmed))
+    alone = scorecard.scorecard(both, both_truth, SETTINGS)
+    pooled = scorecard.combined(pieces)
+    assert pooled.keys() == alone.keys()
+    for name, value in alone.items():
+        assert pooled[name] == pytest.approx(value, rel=1e-9, nan_ok=True), name
+    assert pooled["tracks_per_aircraft"] == 1.5 and pooled["targets"] == 2

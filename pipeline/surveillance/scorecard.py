@@ -234,9 +234,35 @@ def _share(passed: np.ndarray) -> float:
     return float(np.mean(passed)) if len(passed) else float("nan")
 
 
-def scorecard(updates: TrackUpdates, truth: Truth, settings: Settings) -> dict[str, float]:
-    """The indicators of the module docstring, by name (metres, seconds, m/s, shares in [0, 1]; NaN where
-    nothing was there to measure). Raises ValueError for a truth without a target in coverage."""
+@dataclass(frozen=True)
+class Parts:
+    """What one recording (one of the bench's units) adds to a scorecard: per scored update (S,) its
+    horizontal position error's distance and its along- and across-track parts (m), its velocity error (m/s,
+    NaN where the track gives none) and whether the target was manoeuvring; per target in coverage with a
+    track, its tracks and initiation time (s); and the sums behind the ratios. `combined` pools any number."""
+
+    distance: np.ndarray
+    along: np.ndarray
+    across: np.ndarray
+    velocity_miss: np.ndarray
+    manoeuvring: np.ndarray
+    tracks_per_target: np.ndarray
+    initiation_s: np.ndarray
+    duration_s: float
+    missed_s: float
+    long_missed_s: float
+    confirmed_updates: int
+    false_updates: int
+    targets: int
+    targets_never_tracked: int
+    confirmed_tracks: int
+    false_tracks: int
+    swaps: int
+
+
+def parts(updates: TrackUpdates, truth: Truth, settings: Settings) -> Parts:
+    """The scorecard's parts of one recording (module docstring). Raises ValueError for a truth without a
+    target in coverage."""
     if not truth.in_coverage.any():
         raise ValueError("the truth has no target in coverage: nothing to score against")
     confirmed = np.flatnonzero(updates.confirmed)
@@ -263,17 +289,12 @@ def scorecard(updates: TrackUpdates, truth: Truth, settings: Settings) -> dict[s
         velocity_error[mine] = _horizontal(scored.velocity[rows[mine]], frames) - true_velocity[mine]
         manoeuvring[mine] = np.linalg.norm(_horizontal(trajectories.at(t, times, 2), frames), axis=1) \
             > settings.manoeuvre_mps2
-    distance = np.linalg.norm(position_error, axis=1)
     speed = np.linalg.norm(true_velocity, axis=1)
     along_unit = np.divide(true_velocity, speed[:, None], out=np.zeros_like(true_velocity), where=speed[:, None] > 0)
-    along = np.sum(position_error * along_unit, axis=1)
-    across = along_unit[:, 0] * position_error[:, 1] - along_unit[:, 1] * position_error[:, 0]
-    known = np.isfinite(velocity_error).all(axis=1)
-    velocity_miss = np.linalg.norm(velocity_error, axis=1)
 
     covered = [t for t in trajectories.targets.tolist() if truth.in_coverage[truth.target_id == t].any()]
     duration = missed = long_missed = 0.0
-    initiation, tracks_per_target, extra, never = [], [], 0, 0
+    initiation, tracks_per_target, never = [], [], 0
     for t in covered:
         periods = _periods(truth, t, settings.update_interval_s)
         own = target == t
@@ -284,32 +305,58 @@ def scorecard(updates: TrackUpdates, truth: Truth, settings: Settings) -> dict[s
             never += 1
             continue
         tracks_per_target.append(len(tracks))
-        extra += len(tracks) - 1
         initiation.append(float(scored.time_s[own].min()) - periods[0][0])
-    with_target = sum(1 for of in targets_of.values() if of >= 0)
-    false_tracks = sum(1 for of in targets_of.values() if of < 0)
+    return Parts(np.linalg.norm(position_error, axis=1), np.sum(position_error * along_unit, axis=1),
+                 along_unit[:, 0] * position_error[:, 1] - along_unit[:, 1] * position_error[:, 0],
+                 np.where(np.isfinite(velocity_error).all(axis=1), np.linalg.norm(velocity_error, axis=1), np.nan),
+                 manoeuvring, np.array(tracks_per_target, dtype=np.int64), np.array(initiation), duration, missed,
+                 long_missed, int(len(scored.time_s)), int(np.count_nonzero(target < 0)), len(covered), never,
+                 len(targets_of), sum(1 for of in targets_of.values() if of < 0), _swaps(scored.track_id, nearest))
+
+
+def combined(pieces: list[Parts]) -> dict[str, float]:
+    """The indicators of the module docstring, by name (metres, seconds, m/s, shares in [0, 1]; NaN where
+    nothing was there to measure), over the recordings whose `parts` are `pieces`: every update and target of
+    them pooled, as one recording of them all would be scored."""
+    joined = {name: np.concatenate([getattr(piece, name) for piece in pieces]) for name in
+              ("distance", "along", "across", "velocity_miss", "manoeuvring", "tracks_per_target", "initiation_s")}
+    total = {name: sum(getattr(piece, name) for piece in pieces) for name in
+             ("duration_s", "missed_s", "long_missed_s", "confirmed_updates", "false_updates", "targets",
+              "targets_never_tracked", "confirmed_tracks", "false_tracks", "swaps")}
+    distance, manoeuvring, velocity = joined["distance"], joined["manoeuvring"], joined["velocity_miss"]
+    known = np.isfinite(velocity)
+    per_target, initiation = joined["tracks_per_target"], joined["initiation_s"]
+    with_target = total["confirmed_tracks"] - total["false_tracks"]
+    duration = total["duration_s"]
     return {
-        "confirmed_updates": int(len(scored.time_s)), "scored_updates": int(len(rows)),
-        "targets": len(covered), "targets_never_tracked": never, "confirmed_tracks": len(targets_of),
-        "false_tracks": false_tracks,
-        "false_update_ratio": _share(target < 0) if len(target) else float("nan"),
-        "probability_of_update": 1.0 - missed / duration if duration else float("nan"),
-        "ratio_of_long_gaps": long_missed / duration if duration else float("nan"),
+        "confirmed_updates": total["confirmed_updates"], "scored_updates": int(len(distance)),
+        "targets": total["targets"], "targets_never_tracked": total["targets_never_tracked"],
+        "confirmed_tracks": total["confirmed_tracks"], "false_tracks": total["false_tracks"],
+        "false_update_ratio": (total["false_updates"] / total["confirmed_updates"] if total["confirmed_updates"]
+                               else float("nan")),
+        "probability_of_update": 1.0 - total["missed_s"] / duration if duration else float("nan"),
+        "ratio_of_long_gaps": total["long_missed_s"] / duration if duration else float("nan"),
         "position_error_mean_m": float(distance.mean()) if len(distance) else float("nan"),
         "position_error_sigma_m": float(distance.std()) if len(distance) else float("nan"),
-        "position_rms_m": _rms(distance), "along_track_rms_m": _rms(along), "across_track_rms_m": _rms(across),
-        "along_track_mean_m": float(along.mean()) if len(along) else float("nan"),
-        "velocity_rms_straight_mps": _rms(velocity_miss[known & ~manoeuvring]),
-        "velocity_rms_manoeuvring_mps": _rms(velocity_miss[known & manoeuvring]),
+        "position_rms_m": _rms(distance), "along_track_rms_m": _rms(joined["along"]),
+        "across_track_rms_m": _rms(joined["across"]),
+        "along_track_mean_m": float(joined["along"].mean()) if len(distance) else float("nan"),
+        "velocity_rms_straight_mps": _rms(velocity[known & ~manoeuvring]),
+        "velocity_rms_manoeuvring_mps": _rms(velocity[known & manoeuvring]),
         "straight_updates": int(np.count_nonzero(~manoeuvring)), "manoeuvring_updates": int(np.count_nonzero(manoeuvring)),
         "straight_within_0_25_nm": _share(distance[~manoeuvring] <= 0.25 * NAUTICAL_MILE_M),
         "manoeuvring_within_1_nm": _share(distance[manoeuvring] <= NAUTICAL_MILE_M),
-        "tracks_per_aircraft": float(np.mean(tracks_per_target)) if tracks_per_target else float("nan"),
-        "extra_track_ratio": extra / with_target if with_target else float("nan"),
-        "track_swaps": _swaps(scored.track_id, nearest),
-        "initiation_mean_s": float(np.mean(initiation)) if initiation else float("nan"),
-        "initiation_p95_s": float(np.percentile(initiation, 95)) if initiation else float("nan"),
+        "tracks_per_aircraft": float(per_target.mean()) if len(per_target) else float("nan"),
+        "extra_track_ratio": float(np.sum(per_target - 1)) / with_target if with_target else float("nan"),
+        "track_swaps": total["swaps"],
+        "initiation_mean_s": float(initiation.mean()) if len(initiation) else float("nan"),
+        "initiation_p95_s": float(np.percentile(initiation, 95)) if len(initiation) else float("nan"),
     }
+
+
+def scorecard(updates: TrackUpdates, truth: Truth, settings: Settings) -> dict[str, float]:
+    """The indicators of one recording: `combined` of its `parts`."""
+    return combined([parts(updates, truth, settings)])
 
 
 def _swaps(track_id: np.ndarray, nearest: np.ndarray) -> int:
