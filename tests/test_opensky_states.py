@@ -1,0 +1,56 @@
+"""Real trajectories (`pipeline.recordings.opensky_states`): the shipped OpenSky recording read as a truth table,
+and a hand-made CSV's reports on the ground or without altitude left out and counted."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.geometry import geodesy
+from pipeline.io import InputError
+from pipeline.recordings import opensky_states
+from tests.project import REPOSITORY
+
+SHIPPED = REPOSITORY / "external" / "opensky" / "plane_states_2021-07-12.csv"
+HEADER = "time,icao24,lat,lon,velocity,heading,vertrate,callsign,onground,alert,spi,squawk,baroaltitude,geoaltitude\n"
+
+
+def test_the_shipped_recording_is_84_aircraft_over_the_uk_for_20_minutes() -> None:
+    truth, skipped = opensky_states.read_states(SHIPPED)
+    assert truth.num_rows == 6052 and skipped == {}
+    assert len(set(truth.column("icao24").to_pylist())) == 84 == len(set(truth.column("target_id").to_pylist()))
+    time = truth.column("time_unix_s").to_numpy()
+    assert (time.min(), time.max()) == (1626098400.0, 1626099600.0)  # 2021-07-12 14:00 to 14:20 UTC
+    latitude = truth.column("latitude_deg").to_numpy()
+    assert 49.0 < latitude.min() and latitude.max() < 61.0
+    position = np.stack([truth.column(f"{a}_ecef_m").to_numpy() for a in "xyz"], axis=1)
+    back, _, height = geodesy.ecef_to_geodetic(position)
+    np.testing.assert_allclose(back, latitude, atol=1e-9)
+    assert height.max() < 14000.0
+    target = truth.column("target_id").to_numpy()
+    assert np.all(np.diff(target) >= 0) and np.all(np.diff(time)[np.diff(target) == 0] > 0)
+
+
+def test_reports_on_the_ground_or_without_altitude_are_counted_and_baro_altitude_fills_in(tmp_path: Path) -> None:
+    path = tmp_path / "states.csv"
+    path.write_text(HEADER
+                    + "100,aaaaaa,51.0,-1.0,200,90,0,X,False,False,False,1000,9000,9100\n"
+                    + "110,aaaaaa,51.0,-0.97,200,90,0,X,False,False,False,1000,9000,\n"
+                    + "100,bbbbbb,51.5,0.1,5,0,0,Y,True,False,False,2000,100,110\n"
+                    + "100,cccccc,52.0,0.2,200,0,0,Z,False,False,False,3000,,\n")
+    truth, skipped = opensky_states.read_states(path)
+    assert skipped == {"on the ground": 1, "without an altitude": 1}
+    assert truth.column("icao24").to_pylist() == ["aaaaaa", "aaaaaa"]
+    assert truth.column("altitude_m").to_pylist() == [9100.0, 9000.0]  # GNSS height, else barometric
+
+
+def test_a_missing_column_or_an_impossible_value_names_the_file_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "states.csv"
+    path.write_text("time,icao24,lat,lon\n100,aaaaaa,51.0,-1.0\n")
+    with pytest.raises(InputError, match="states.csv: not an OpenSky state-vector CSV"):
+        opensky_states.read_states(path)
+    path.write_text(HEADER + "100,aaaaaa,91.0,-1.0,200,90,0,X,False,False,False,1000,9000,9100\n")
+    with pytest.raises(InputError, match=r"states.csv: column lat: 91.0 at row 0, outside \[-90, 90\]"):
+        opensky_states.read_states(path)
