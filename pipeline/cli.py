@@ -272,27 +272,26 @@ def _iso_date(text: str) -> date:
         raise argparse.ArgumentTypeError(f"{text!r} is not a date (YYYY-MM-DD): {error}") from None
 
 
+def _positive(text: str, what: str) -> float:
+    """A finite number above 0 parsed from an option, else a usage error (exit 2) saying it is not `what`."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}")
+    return value
+
+
 def _window_m(text: str) -> float:
     """--window checked where it is parsed: a radius of 0, below 0, NaN or infinity would run (no plot, or every
     plot, within it) and give tracks of nothing, so it is a usage error (exit 2)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a window: a finite distance above 0 in metres")
-    return value
+    return _positive(text, "a window: a finite distance above 0 in metres")
 
 
 def _interval_s(text: str) -> float:
-    """--update-interval checked where it is parsed: a finite time above 0 (a usage error, exit 2, otherwise)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or value <= 0.0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an update interval: a finite time above 0 in seconds")
-    return value
+    """--update-interval checked where it is parsed: a finite time above 0."""
+    return _positive(text, "an update interval: a finite time above 0 in seconds")
 
 
 def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str]) -> None:

@@ -107,23 +107,21 @@ class Reference:
     source: str
 
 
+def _ecac(figures: str, mean_nm: float, sigma_nm: float, straight: float, manoeuvring: float) -> tuple:
+    """The four figures of the ECAC radar separation guidelines for a kind of tracker (`figures`)."""
+    source = f"ECAC radar separation guidelines, {figures} tracker"
+    return ((figures, Reference("position_error_mean_m", mean_nm * NAUTICAL_MILE_M, True, f"{source}: mean {mean_nm} NM")),
+            (figures, Reference("position_error_sigma_m", sigma_nm * NAUTICAL_MILE_M, True,
+                                f"{source}: sigma {sigma_nm} NM")),
+            (figures, Reference("straight_within_0_25_nm", straight, False,
+                                f"{source}: {100 * straight:.2f} % of straight updates within 0.25 NM")),
+            (figures, Reference("manoeuvring_within_1_nm", manoeuvring, False,
+                                f"{source}: {100 * manoeuvring:.2f} % of manoeuvring updates within 1 NM")))
+
+
 REFERENCES = (  # (figure set, reference), the figures of field-standards.md with their sources
-    ("single-radar", Reference("position_error_mean_m", 0.13 * NAUTICAL_MILE_M, True,
-                               "ECAC radar separation guidelines, single-radar tracker: mean 0.13 NM")),
-    ("single-radar", Reference("position_error_sigma_m", 0.13 * NAUTICAL_MILE_M, True,
-                               "ECAC radar separation guidelines, single-radar tracker: sigma 0.13 NM")),
-    ("single-radar", Reference("straight_within_0_25_nm", 0.9830, False,
-                               "ECAC radar separation guidelines, single-radar: 98.30 % of straight updates")),
-    ("single-radar", Reference("manoeuvring_within_1_nm", 0.9986, False,
-                               "ECAC radar separation guidelines, single-radar: 99.86 % of manoeuvring updates")),
-    ("multi-radar", Reference("position_error_mean_m", 0.06 * NAUTICAL_MILE_M, True,
-                              "ECAC radar separation guidelines, multi-radar tracker: mean 0.06 NM")),
-    ("multi-radar", Reference("position_error_sigma_m", 0.08 * NAUTICAL_MILE_M, True,
-                              "ECAC radar separation guidelines, multi-radar tracker: sigma 0.08 NM")),
-    ("multi-radar", Reference("straight_within_0_25_nm", 0.9955, False,
-                              "ECAC radar separation guidelines, multi-radar: 99.55 % of straight updates")),
-    ("multi-radar", Reference("manoeuvring_within_1_nm", 1.0, False,
-                              "ECAC radar separation guidelines, multi-radar: 100 % of manoeuvring updates")),
+    *_ecac("single-radar", 0.13, 0.13, 0.9830, 0.9986),
+    *_ecac("multi-radar", 0.06, 0.08, 0.9955, 1.0),
     ("ED-129C", Reference("ratio_of_long_gaps", 0.005, True, "EUROCAE ED-129C REQ 18 (as COMPASS): at most 0.5 %")),
 )
 
