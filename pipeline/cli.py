@@ -109,6 +109,12 @@ def _score(args: argparse.Namespace) -> None:
               Path(args.truth), args.scenario, args.update_interval, Path(args.out))
 
 
+def _real_traffic(args: argparse.Namespace) -> None:
+    from pipeline.stages.real_traffic_command import run_real_traffic
+    run_real_traffic(load_params(args.params), Path(args.states), args.latitude, args.longitude, args.height,
+                     Path(args.out))
+
+
 def _associate(args: argparse.Namespace) -> None:
     from pipeline.stages.associate_command import run_associate
     run_associate(load_params(args.params), [Path(p) for p in args.tracks], [Path(p) for p in args.radar],
@@ -238,6 +244,15 @@ COMMANDS = {
               "  python -m pipeline score --cat062 tracks.ast --date 2026-06-01 --reference 60.1 24.9 "
               "--truth truth.parquet --scenario 5 --out scorecard.json",
               ["params", "scoring"]),
+    "real-traffic": (_real_traffic, "Fly real aircraft (OpenSky state vectors; the project ships 84 over the UK) past "
+                     "params' radar moved to a site: plots, per-scan truth and radar description, for `track` and "
+                     "`score`.",
+                     "python -m pipeline real-traffic --out data/real_traffic\n"
+                     "  python -m pipeline track --plots data/real_traffic/plots.parquet "
+                     "--radar data/real_traffic/radar.parquet --out real_tracks.parquet\n"
+                     "  python -m pipeline score --tracks real_tracks.parquet --truth data/real_traffic/truth.parquet "
+                     "--out real_score.json",
+                     ["params", "real_traffic"]),
     "associate": (_associate, "Associate two users' track tables (what `track` writes, classical methods: they give "
                   "covariances) at common times and fuse the pairs by covariance intersection; writes the pairs "
                   "and the fused air picture (Parquet).",
@@ -347,6 +362,16 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
         command.add_argument("--update-interval", type=_interval_s,
                              help="the radar's update interval, s (default: 60 / params' radar.rotation_rpm)")
         command.add_argument("--out", required=True, help="output JSON (and Markdown beside it, <stem>.md)")
+    elif option == "real_traffic":
+        command.add_argument("--states", default="external/opensky/plane_states_2021-07-12.csv",
+                             help="OpenSky state-vector CSV (default: %(default)s, credited in its folder)")
+        command.add_argument("--latitude", type=float, default=52.5, help="radar site latitude, deg (default: "
+                                                                          "%(default)s, central England)")
+        command.add_argument("--longitude", type=float, default=-1.5, help="radar site longitude, deg (default: "
+                                                                           "%(default)s)")
+        command.add_argument("--height", type=float, default=100.0, help="antenna height above WGS-84, m (default: "
+                                                                         "%(default)s)")
+        command.add_argument("--out", default="data/real_traffic", help="output folder (default: %(default)s)")
     elif option == "association":
         command.add_argument("--tracks", nargs=2, required=True, metavar=("FIRST", "SECOND"),
                              help="the two users' track tables (Parquet, the schema `track` writes)")

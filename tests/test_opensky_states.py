@@ -19,10 +19,11 @@ HEADER = "time,icao24,lat,lon,velocity,heading,vertrate,callsign,onground,alert,
 
 def test_the_shipped_recording_is_84_aircraft_over_the_uk_for_20_minutes() -> None:
     truth, skipped = opensky_states.read_states(SHIPPED)
-    assert truth.num_rows == 6052 and skipped == {}
+    assert skipped == {"repeated (no new position since the last report)": 645}
+    assert truth.num_rows == 6052 - 645
     assert len(set(truth.column("icao24").to_pylist())) == 84 == len(set(truth.column("target_id").to_pylist()))
-    time = truth.column("time_unix_s").to_numpy()
-    assert (time.min(), time.max()) == (1626098400.0, 1626099600.0)  # 2021-07-12 14:00 to 14:20 UTC
+    time = truth.column("time_unix_s").to_numpy()  # each position's own time (lastposupdate)
+    assert 1626098100.0 < time.min() and time.max() <= 1626099600.0  # 2021-07-12 to 14:20 UTC
     latitude = truth.column("latitude_deg").to_numpy()
     assert 49.0 < latitude.min() and latitude.max() < 61.0
     position = np.stack([truth.column(f"{a}_ecef_m").to_numpy() for a in "xyz"], axis=1)
@@ -38,12 +39,25 @@ def test_reports_on_the_ground_or_without_altitude_are_counted_and_baro_altitude
     path.write_text(HEADER
                     + "100,aaaaaa,51.0,-1.0,200,90,0,X,False,False,False,1000,9000,9100\n"
                     + "110,aaaaaa,51.0,-0.97,200,90,0,X,False,False,False,1000,9000,\n"
+
                     + "100,bbbbbb,51.5,0.1,5,0,0,Y,True,False,False,2000,100,110\n"
                     + "100,cccccc,52.0,0.2,200,0,0,Z,False,False,False,3000,,\n")
     truth, skipped = opensky_states.read_states(path)
-    assert skipped == {"on the ground": 1, "without an altitude": 1}
+    assert skipped == {"on the ground": 1, "without an altitude": 1}  # no lastposupdate column: each row is new
     assert truth.column("icao24").to_pylist() == ["aaaaaa", "aaaaaa"]
     assert truth.column("altitude_m").to_pylist() == [9100.0, 9000.0]  # GNSS height, else barometric
+
+
+def test_a_position_repeated_without_a_new_update_is_left_out_and_positions_take_their_own_time(tmp_path: Path
+                                                                                             ) -> None:
+    path = tmp_path / "states.csv"
+    path.write_text(HEADER.strip() + ",lastposupdate\n"
+                    + "100,aaaaaa,51.0,-1.0,200,90,0,X,False,False,False,1000,9000,9100,99.5\n"
+                    + "110,aaaaaa,51.0,-0.97,200,90,0,X,False,False,False,1000,9000,9100,109.7\n"
+                    + "120,aaaaaa,51.0,-0.97,200,90,0,X,False,False,False,1000,9000,9100,109.7\n")
+    truth, skipped = opensky_states.read_states(path)
+    assert skipped == {"repeated (no new position since the last report)": 1}
+    assert truth.column("time_unix_s").to_pylist() == [99.5, 109.7]
 
 
 def test_a_missing_column_or_an_impossible_value_names_the_file_and_column(tmp_path: Path) -> None:

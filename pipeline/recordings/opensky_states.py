@@ -1,6 +1,10 @@
 """Real aircraft trajectories: OpenSky Network state vectors (CSV, as OpenSky's historical database and Stone
 Soup's demonstration give them) read as a truth table.
 
+A state vector is OpenSky's view of an aircraft at `time`; its position is the last one received, at
+`lastposupdate`, and is repeated while no new one comes (645 of the shipped recording's 6052 rows): the
+position is taken at `lastposupdate` (at `time` where that column is missing) and a repeated one is left out.
+
 The project ships one such recording (`external/opensky/`, 84 aircraft over the UK for 20 minutes, credited
 there). A state vector is an ADS-B position report resampled by OpenSky: `time` (Unix s), `icao24` (the
 aircraft's 24-bit address, its identity), `lat`, `lon` (deg, WGS-84), `geoaltitude` (m, the GNSS height,
@@ -25,6 +29,7 @@ from pipeline.io import InputError
 
 COLUMNS = {"time": pa.float64(), "icao24": pa.string(), "lat": pa.float64(), "lon": pa.float64(),
            "geoaltitude": pa.float64(), "baroaltitude": pa.float64(), "onground": pa.bool_()}
+POSITION_TIME = "lastposupdate"  # optional: when the position was received
 TRUTH_SCHEMA = pa.schema([("target_id", pa.int32()), ("icao24", pa.string()), ("time_unix_s", pa.float64()),
                           ("latitude_deg", pa.float64()), ("longitude_deg", pa.float64()), ("altitude_m", pa.float64()),
                           ("x_ecef_m", pa.float64()), ("y_ecef_m", pa.float64()), ("z_ecef_m", pa.float64()),
@@ -40,9 +45,11 @@ def read_states(path: Path) -> tuple[pa.Table, dict[str, int]]:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: file not found")
+    header = path.open(encoding="utf-8", errors="replace").readline().strip().split(",")
+    wanted = {**COLUMNS, **({POSITION_TIME: pa.float64()} if POSITION_TIME in header else {})}
     try:
-        table = csv.read_csv(path, convert_options=csv.ConvertOptions(column_types=COLUMNS,
-                                                                      include_columns=list(COLUMNS)))
+        table = csv.read_csv(path, convert_options=csv.ConvertOptions(column_types=wanted,
+                                                                      include_columns=list(wanted)))
     except (pa.ArrowInvalid, KeyError) as error:
         raise InputError(f"{path}: not an OpenSky state-vector CSV with columns {', '.join(COLUMNS)}: {error}") from None
     for name, (low, high) in LIMITS.items():
@@ -59,13 +66,24 @@ def read_states(path: Path) -> tuple[pa.Table, dict[str, int]]:
     skipped = {"on the ground": int(np.count_nonzero(on_ground & ~no_position & ~no_altitude)),
                "without a position": int(np.count_nonzero(no_position)),
                "without an altitude": int(np.count_nonzero(no_altitude))}
-    keep = ~(on_ground | no_position | no_altitude)
-    icao24 = np.asarray(table.column("icao24").to_pylist(), dtype=object)[keep].astype(str)
-    time = table.column("time").to_numpy(zero_copy_only=False)[keep]
+    position_time = (pc.coalesce(table.column(POSITION_TIME), table.column("time")) if POSITION_TIME in wanted
+                     else table.column("time")).to_numpy(zero_copy_only=False)
+    addresses = np.asarray(table.column("icao24").to_pylist(), dtype=object).astype(str)
+    usable = ~(on_ground | no_position | no_altitude)
+    stale = np.zeros(len(usable), bool)
+    seen = set()
+    for row in np.flatnonzero(usable).tolist():
+        key = (addresses[row], position_time[row])
+        stale[row] = key in seen
+        seen.add(key)
+    skipped["repeated (no new position since the last report)"] = int(np.count_nonzero(stale))
+    keep = usable & ~stale
+    icao24 = addresses[keep]
+    time = position_time[keep]
     latitude = table.column("lat").to_numpy(zero_copy_only=False)[keep]
     longitude = table.column("lon").to_numpy(zero_copy_only=False)[keep]
     height = altitude.to_numpy(zero_copy_only=False)[keep]
-    addresses, target = np.unique(icao24, return_inverse=True)
+    _, target = np.unique(icao24, return_inverse=True)
     order = np.lexsort((time, target))
     ecef = geodesy.geodetic_to_ecef(latitude[order], longitude[order], height[order]).reshape(-1, 3)
     truth = pa.table({"target_id": pa.array(target[order].astype(np.int32)), "icao24": pa.array(icao24[order]),
