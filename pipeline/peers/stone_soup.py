@@ -141,10 +141,10 @@ def track_with_stone_soup(plots: Plots, settings: StoneSoupSettings) -> dict[str
         seen.update((track.id, track) for track in started)
     rows = []
     for number, track_id in enumerate(sorted(seen)):
-        updates = [state for state in seen[track_id].states if hasattr(state, "hypothesis")
-                   and _measurement_row(state.hypothesis) is not None]
-        for k, state in enumerate(updates):
-            rows.append((number, _measurement_row(state.hypothesis), k >= settings.min_points - 1,
+        updates = [(row, state) for state in seen[track_id].states if hasattr(state, "hypothesis")
+                   for row in [_measurement_row(state.hypothesis)] if row is not None]
+        for k, (row, state) in enumerate(updates):
+            rows.append((number, row, k >= settings.min_points - 1,
                          np.asarray(state.state_vector, dtype=float).reshape(6), np.asarray(state.covar, dtype=float)))
     return _table(plots, rows)
 

@@ -108,8 +108,8 @@ def read_truth(path: Path) -> tuple[Truth, np.ndarray]:
             _column(table, "scenario_id", NO_SCENARIO).astype(np.int64))
 
 
-def _chosen(scenario: int | None, track_scenarios: np.ndarray, truth_scenarios: np.ndarray, tracks_path: Path,
-            truth_path: Path) -> tuple[np.ndarray, np.ndarray]:
+def _chosen(scenario: int | None, track_scenarios: np.ndarray, truth_scenarios: np.ndarray, truth_path: Path
+            ) -> tuple[np.ndarray, np.ndarray]:
     """The rows of the tracks and of the truth that are scored: all, or those of `scenario`."""
     if scenario is None:
         return np.ones(len(track_scenarios), bool), np.ones(len(truth_scenarios), bool)
@@ -182,7 +182,7 @@ def run_score(params: Params, tracks_path: Path | None, cat062_path: Path | None
             log.warning("score: no --reference for %s: its velocities (I062/185) are not scored", cat062_path)
     tracks_file = tracks_path or cat062_path
     truth, truth_scenarios = read_truth(truth_path)
-    track_rows, truth_rows = _chosen(scenario, track_scenarios, truth_scenarios, tracks_file, truth_path)
+    track_rows, truth_rows = _chosen(scenario, track_scenarios, truth_scenarios, truth_path)
     updates = TrackUpdates(*(getattr(updates, name)[track_rows] for name in
                              ("track_id", "time_s", "position", "velocity", "confirmed")))
     truth = Truth(*(getattr(truth, name)[truth_rows] for name in ("target_id", "time_s", "position", "in_coverage")))
