@@ -45,11 +45,12 @@ def main() -> None:
     plots = plots.take(np.arange(min(args.plots, len(plots))))
     cv = classical_filters.load_settings(args.run / "models" / "kalman_tuned.json")["cv"]
     models = load_models(args.run / "models", params, ["imm_gnn", "kalman_cv"])
+    gate = params.tracker.association.kalman_gate_probability
     runs = {
         "stone_soup_gnn": lambda: stone_soup.track_with_stone_soup(
-            plots, stone_soup.StoneSoupSettings("gnn", cv.noise_std[0], cv.velocity_std_mps)),
+            plots, stone_soup.StoneSoupSettings.from_params("gnn", params.peers.stone_soup, cv, gate)),
         "stone_soup_jpda": lambda: stone_soup.track_with_stone_soup(
-            plots, stone_soup.StoneSoupSettings("jpda", cv.noise_std[0], cv.velocity_std_mps)),
+            plots, stone_soup.StoneSoupSettings.from_params("jpda", params.peers.stone_soup, cv, gate)),
         "imm_gnn": lambda: track(plots, registry.compose("imm_gnn", models, params.tracker, 4000.0, [0])),
         "kalman_cv": lambda: track(plots, registry.compose("kalman_cv", models, params.tracker, 4000.0, [0])),
     }

@@ -201,7 +201,7 @@ def test_a_run_may_name_its_track_management_rule_and_its_name_then_says_it(para
     """`evaluate.runs` entries without `management` keep their names (the tracker's rule); one
     naming its rule is `<method>_<window>_<rule>`, and by that name its record, with the registry's
     method, is found among params' runs; a rule that does not exist is named with its run."""
-    params_tree["evaluate"]["site_runs"] = params_tree["evaluate"]["scene_runs"] = []
+    params_tree["evaluate"]["site_runs"] = params_tree["evaluate"]["scene_runs"] = params_tree["peers"]["runs"] = []
     params_tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                        {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     runs = parse_params(params_tree).evaluate.runs
@@ -280,4 +280,18 @@ def test_a_site_at_the_antimeridian_is_plus_180(params_tree):
 def test_bad_association_value_is_named(params_tree, key, value, message):
     params_tree["association"][key] = value
     with pytest.raises(ParamError, match=re.escape(message)):
+        parse_params(params_tree)
+
+
+def test_the_peers_runs_are_runs_of_the_evaluation(params_tree):
+    """`peers.runs` names runs of `evaluate.runs` (a name that is none is an error naming the key); [] takes the
+    scenes' runs."""
+    params_tree["peers"]["runs"] = ["imm_gnn_4000", "kalman_ukf_4000"]
+    with pytest.raises(ParamError, match=r"peers.runs = \['imm_gnn_4000', 'kalman_ukf_4000'\]: must list distinct"):
+        parse_params(params_tree)
+    params_tree["peers"]["runs"] = []
+    params = parse_params(params_tree)
+    assert params.peers.runs_of(params.evaluate) == params.evaluate.runs_on_scenes()
+    params_tree["peers"]["stone_soup"]["associations"] = ["gnn", "mht"]
+    with pytest.raises(ParamError, match="peers.stone_soup.associations"):
         parse_params(params_tree)

@@ -9,9 +9,10 @@ import pytest
 from pipeline.geometry import geodesy
 from pipeline.surveillance import scorecard
 from pipeline.surveillance.scorecard import Settings, TrackUpdates, Truth
+from tests.tracker_fixtures import make_params
 
 SCAN_S = 6.0
-SETTINGS = Settings(update_interval_s=SCAN_S)
+SETTINGS = Settings.from_params(SCAN_S, make_params().scorecard)  # ED-129C's 3.3 scans, 2 km, 1 m/s^2
 ROTATION = geodesy.enu_rotation(52.0, 4.0)
 ORIGIN = geodesy.geodetic_to_ecef(52.0, 4.0, 9000.0)
 
@@ -143,7 +144,7 @@ def test_a_turning_aircraft_scores_its_updates_as_manoeuvring() -> None:
 
 def test_settings_and_truth_out_of_bounds_are_named() -> None:
     with pytest.raises(ValueError, match="update_interval_s = 0.0"):
-        Settings(update_interval_s=0.0)
+        Settings.from_params(0.0, make_params().scorecard)
     truth = straight_truth(0, TIMES)
     blind = Truth(truth.target_id, truth.time_s, truth.position, np.zeros(len(TIMES), bool))
     with pytest.raises(ValueError, match="no target in coverage"):

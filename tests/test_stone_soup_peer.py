@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pipeline.filters.classical_filters import FilterSettings
 from pipeline.peers import stone_soup
 from pipeline.peers.stone_soup import StoneSoupSettings
 from tests import tracker_fixtures as tf
@@ -21,8 +22,10 @@ def test_two_aircraft_in_clutter_are_two_tracks_of_their_own_plots(association: 
     ids = np.arange(40 + len(clutter))
     features, plot_ids = tf.merge((first, ids[:20]), (second, ids[20:40]), (clutter, ids[40:]))
     plots = tf.plots_of(features, plot_ids, radar)
-    updates = stone_soup.track_with_stone_soup(plots, StoneSoupSettings(association, noise_std=2.0,
-                                                                        velocity_std_mps=300.0))
+    settings = StoneSoupSettings(association, noise_std=2.0, velocity_std_mps=300.0, gate_probability=0.999,
+                                 min_points=3, delete_after_s=20.0, batch_window_s=0.05, detection_probability=0.9,
+                                 clutter_density=1e-12)
+    updates = stone_soup.track_with_stone_soup(plots, settings)
     confirmed = updates["confirmed"]
     tracks = tf.tracks_of({name: values[confirmed] for name, values in updates.items()})
     aircraft = [sorted(plot_ids) for plot_ids in tracks.values() if len(plot_ids) >= 10]
@@ -33,3 +36,14 @@ def test_two_aircraft_in_clutter_are_two_tracks_of_their_own_plots(association: 
     assert updates["position_covariance"].shape == (len(confirmed), 3, 3)
     late = np.isin(updates["plot_id"], np.arange(10, 20))  # the first aircraft's, settled: 201 m/s
     assert np.linalg.norm(updates["velocity"][late], axis=1) == pytest.approx(np.hypot(180.0, 90.0), abs=15.0)
+
+
+def test_settings_come_from_params_and_our_tuned_cv() -> None:
+    params = tf.make_params()
+    cv = FilterSettings("cv", (12.5,), 140.0, 10.0, 0.05, 0.9)
+    settings = StoneSoupSettings.from_params("jpda", params.peers.stone_soup, cv, 0.999)
+    assert (settings.noise_std, settings.velocity_std_mps, settings.min_points) == (12.5, 140.0,
+                                                                                     params.peers.stone_soup.min_points)
+    assert settings.gate_distance == pytest.approx(np.sqrt(16.266), abs=1e-3)  # chi-square 0.999, 3 dof
+    with pytest.raises(ValueError, match="association 'pda'"):
+        StoneSoupSettings.from_params("pda", params.peers.stone_soup, cv, 0.999)

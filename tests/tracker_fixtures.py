@@ -50,9 +50,12 @@ NOISE_M = (50.0, 50.0, 30.0)  # synthetic plot noise in east, north, up
 
 def params_tree(changes: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The default params.yaml tree with dotted keys changed, e.g. {"windows.frame": "enu"}; evaluations
-    on one draw of each scenario (`evaluate.seeds`: the tests that need more say so)."""
+    on one draw of each scenario (`evaluate.seeds`: the tests that need more say so); a test that gives its own
+    `evaluate.runs` and no `peers.runs` sets all its scene runs beside the peers (`peers.runs: []`)."""
     tree = copy.deepcopy(default_params_tree())
     tree["evaluate"]["seeds"] = 1
+    if "evaluate.runs" in (changes or {}) and "peers.runs" not in changes:
+        tree["peers"]["runs"] = []
     for dotted, value in (changes or {}).items():
         *parents, key = dotted.split(".")
         node = tree

@@ -53,7 +53,12 @@ def scan_estimates(updates: dict[str, np.ndarray], update_scans: np.ndarray, man
                    ) -> ScanEstimates:
     """The estimate set of every scan from an update table (`pipeline.tracker.updates`), confirmed by
     `management`'s rule; `update_scans` is the scan of each update's plot."""
-    confirmed = confirmed_associations(updates, management)
+    return marked_estimates(updates, update_scans, confirmed_associations(updates, management))
+
+
+def marked_estimates(updates: dict[str, np.ndarray], update_scans: np.ndarray, confirmed: np.ndarray) -> ScanEstimates:
+    """The estimate set of every scan from the updates (U rows of track id, time, ECEF position) marked
+    `confirmed` (U,) bool: each confirmed track's last update in each scan, `update_scans` (U,) the scans."""
     times = updates["time_unix_s"][confirmed]
     scans = update_scans[confirmed]
     tracks = updates["track_id"][confirmed]

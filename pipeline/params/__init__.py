@@ -13,13 +13,14 @@ from pipeline.params.declare import ParamError, ParamsLoader, load_params_tree
 from pipeline.params.learning import (TUNING_COSTS, Association, Kalman, KalmanNet, LSTMUpdate, NetworkTraining,
                                       Training)
 from pipeline.params.tracking import (MIA, Associate, Candidates, Evaluate, EvaluationRun, Fusion, FusionRadar,
-                                      LSTMUpdateGate, Management, Networks, Params, Site, TrackerParams, parse_tree)
+                                      LSTMUpdateGate, Management, Networks, Params, Peers, RealTraffic, Scorecard, Site,
+                                      StoneSoupPeer, TrackerParams, parse_tree)
 from pipeline.params.world import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk, RandomTurns, Radar, Routes, Scenes,
                                    Split, SustainedTurns, Windows, formation_resolution_m)
 
 __all__ = ["MIA", "STRATEGIES", "TUNING_COSTS", "Aircraft", "Associate", "Association", "Candidates", "ClimbDive",
            "ConstantJerk", "Evaluate", "EvaluationRun", "Fusion", "FusionRadar", "Kalman", "KalmanNet", "LSTMUpdate",
            "LSTMUpdateGate", "Management", "NetworkTraining", "Networks", "ParamError", "Params", "ParamsLoader",
-           "Radar", "RandomTurns", "Routes", "Scenes",
-           "Site", "Split", "SustainedTurns", "TrackerParams", "Training", "Windows", "formation_resolution_m",
+           "Peers", "Radar", "RandomTurns", "RealTraffic", "Routes", "Scenes", "Scorecard",
+           "Site", "Split", "StoneSoupPeer", "SustainedTurns", "TrackerParams", "Training", "Windows", "formation_resolution_m",
            "load_params_tree", "parse_tree"]

@@ -312,6 +312,74 @@ class Fusion(Section):
         return self
 
 
+STONE_SOUP_ASSOCIATIONS = ("gnn", "jpda")  # pipeline/peers/stone_soup.py: GNNWith2DAssignment, JPDAwithEHM
+
+
+@dataclass(frozen=True)
+class Scorecard(Section):
+    """`scorecard` (ours, issue 32): the surveillance scorecard's choices where EUROCAE ED-129C and the ECAC
+    guidelines leave one open (pipeline/surveillance/scorecard.py); the update interval is the radar's scan
+    period. Read by the peers stage and by `python -m pipeline score`."""
+
+    association_m: float = positive("an update farther than this from every target goes to none (a false update)")
+    miss_tolerance_scans: float = knob("a gap up to (1 + this) update intervals is no miss (a plot's place in the "
+                                       "scan moves it by a fraction of one)", -1.0, open_low=True)
+    long_gap_scans: float = positive("a long gap is longer than this many update intervals (ED-129C: 3 x 1.1)")
+    manoeuvre_mps2: float = positive("an update is manoeuvring where the target's true horizontal acceleration "
+                                     "exceeds this")
+
+
+@dataclass(frozen=True)
+class StoneSoupPeer(Section):
+    """`peers.stone_soup` (ours, issue 33): Stone Soup's trackers as pipeline/peers/stone_soup.py sets them up: our
+    tuned CV model and the chi-square gate of tracker.association.kalman_gate_probability; the rest here."""
+
+    associations: tuple[str, ...] = knob("the Stone Soup trackers run: gnn (GNNWith2DAssignment), jpda (JPDAwithEHM)",
+                                         choices=STONE_SOUP_ASSOCIATIONS,
+                                         why=f"must list distinct names of {STONE_SOUP_ASSOCIATIONS}")
+    min_points: int = knob("updates that confirm a track (MultiMeasurementInitiator; the tutorials' 3)", 1, 100)
+    delete_after_s: float = positive("a track without an update for this long is deleted (UpdateTimeDeleter)")
+    batch_window_s: float = knob("plots this close in time are one batch, associated at one time (s)", 0.0, 1.0,
+                                 open_low=True)
+    detection_probability: float = knob("JPDA's probability of detection", 0.0, 1.0, open_low=True,
+                                        open_high=True)
+    clutter_density_per_m3: float = positive("JPDA's clutter spatial density")
+
+    def check(self, path: str, context: Mapping[str, Any]) -> StoneSoupPeer:
+        if len(set(self.associations)) != len(self.associations):
+            raise ParamError(f"{path}.associations = {list(self.associations)}: names repeat")
+        return self
+
+
+@dataclass(frozen=True)
+class RealTraffic(Section):
+    """`peers.real_traffic` (ours, issue 33): real aircraft (OpenSky state vectors, pipeline/recordings/
+    opensky_states.py) flown past params' radar moved to a site (pipeline/simulation/real_traffic.py)."""
+
+    states: str = knob("the OpenSky state-vector CSV, relative to the repository ('': no real-traffic scene)")
+    latitude_deg: float = knob("the radar's latitude there", -90.0, 90.0)
+    longitude_deg: float = knob("... longitude", -180.0, 180.0, open_low=True)
+    height_m: float = knob("... antenna height above the WGS-84 ellipsoid", -500.0, 10000.0)
+
+
+@dataclass(frozen=True)
+class Peers(Section):
+    """`peers` (ours, issues 32, 33): the peers stage (pipeline/bench/peers.py): Stone Soup's trackers, our runs and
+    the oracle on the same plots, scored by GOSPA and the surveillance scorecard, with intervals."""
+
+    scenarios_per_strategy: int = knob("the first this many scenarios of each route strategy of evaluate.split", 1)
+    window_s: float = knob("each of them from its first plot for this long (s; 0: whole): Stone Soup tracks about "
+                           "100 plots a second", 0.0)
+    runs: tuple[str, ...] = knob("our runs (names of evaluate.runs) set beside Stone Soup's ([]: those of "
+                                 "evaluate.scene_runs)", why="must be a list of run names")
+    stone_soup: StoneSoupPeer = knob("Stone Soup's trackers")
+    real_traffic: RealTraffic = knob("the real-traffic scene")
+
+    def runs_of(self, evaluate: Evaluate) -> tuple[EvaluationRun, ...]:
+        """Our runs the peers stage scores: those `runs` names, in `evaluate.runs` order, or the scenes' runs."""
+        return tuple(run for run in evaluate.runs if run.name in self.runs) if self.runs else evaluate.runs_on_scenes()
+
+
 @dataclass(frozen=True)
 class Params(Section):
     """The whole params.yaml, section by section."""
@@ -335,6 +403,8 @@ class Params(Section):
                         1, key="compute.workers")
     associate: Associate = knob("the associate command")
     fusion: Fusion = knob("the fusion stage")
+    scorecard: Scorecard = knob("the surveillance scorecard")
+    peers: Peers = knob("the peers stage")
     chunk_plots: int = knob("`track` places, tracks and writes this many plots at a time (same output for any "
                             "value; its memory follows this)", 1, key="compute.chunk_plots")
     progress_every_s: float = knob("long work (`track`) logs a progress line at most this often, s (0: after every "
@@ -346,6 +416,10 @@ class Params(Section):
             raise ParamError(f"associate.keep_probability = {associate.keep_probability}: must be at least "
                              f"association.gate_probability = {gate} (a pair is kept on a gate no tighter than the "
                              "one it was formed on)")
+        names = [run.name for run in self.evaluate.runs]
+        if any(name not in names for name in self.peers.runs) or len(set(self.peers.runs)) != len(self.peers.runs):
+            raise ParamError(f"peers.runs = {list(self.peers.runs)!r}: must list distinct names of the runs {names} "
+                             "([]: those of evaluate.scene_runs)")
         fastest = max(self.aircraft.values(), key=lambda a: a.speed_max_mps)
         if associate.max_speed_mps <= fastest.speed_max_mps:
             raise ParamError(f"associate.max_speed_mps = {associate.max_speed_mps}: must exceed the fastest "

@@ -31,8 +31,11 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 
 import numpy as np
+from scipy.stats import chi2
 
 from pipeline.filters import motion_models
+from pipeline.filters.classical_filters import FilterSettings
+from pipeline.params import StoneSoupPeer
 from pipeline.recordings.plot_table import Plots
 
 EPOCH = datetime(1970, 1, 1)  # Stone Soup's times are datetimes: Unix seconds from here (microseconds)
@@ -41,22 +44,35 @@ ASSOCIATIONS = ("gnn", "jpda")
 
 @dataclass(frozen=True)
 class StoneSoupSettings:
-    """A Stone Soup tracker's set-up (module docstring)."""
+    """A Stone Soup tracker's set-up (module docstring); `from_params` builds it from params' `peers.stone_soup`."""
 
     association: str                  # "gnn" (GNNWith2DAssignment) or "jpda" (JPDAwithEHM)
     noise_std: float                  # the CV model's white-noise acceleration, m/s^2 (our tuned CV's)
     velocity_std_mps: float           # a new track's velocity spread (our tuned CV's)
-    gate_distance: float = 3.717      # Mahalanobis distance gate: the 0.999 chi-square quantile of 3 degrees of
-                                      # freedom (16.27), square-rooted (Stone Soup's measure is the distance)
-    min_points: int = 3               # updates to confirm a track (the tutorials' 3-point initiation)
-    delete_after_s: float = 20.0      # a track silent this long is deleted (about 3 scans of a 6 s radar)
-    batch_window_s: float = 0.05      # plots this close in time are one batch, at one time (module docstring)
-    detection_probability: float = 0.9   # JPDA's P_d
-    clutter_density: float = 1e-12    # JPDA's clutter spatial density, per m^3
+    gate_probability: float           # the chi-square gate's probability (3 degrees of freedom; ours)
+    min_points: int                   # updates to confirm a track (the tutorials' 3-point initiation)
+    delete_after_s: float             # a track silent this long is deleted
+    batch_window_s: float             # plots this close in time are one batch, at one time (module docstring)
+    detection_probability: float      # JPDA's P_d
+    clutter_density: float            # JPDA's clutter spatial density, per m^3
 
     def __post_init__(self) -> None:
         if self.association not in ASSOCIATIONS:
             raise ValueError(f"Stone Soup association {self.association!r}: must be one of {ASSOCIATIONS}")
+
+    @property
+    def gate_distance(self) -> float:
+        """The Mahalanobis distance of the gate (Stone Soup's measure is the distance, not its square)."""
+        return float(np.sqrt(chi2.ppf(self.gate_probability, 3)))
+
+    @classmethod
+    def from_params(cls, association: str, peer: StoneSoupPeer, cv: FilterSettings,
+                    gate_probability: float) -> StoneSoupSettings:
+        """The set-up of `association` from params' `peers.stone_soup`, our tuned CV filter's settings `cv` and our
+        gate's probability (`tracker.association.kalman_gate_probability`)."""
+        return cls(association, float(cv.noise_std[0]), float(cv.velocity_std_mps), gate_probability,
+                   peer.min_points, peer.delete_after_s, peer.batch_window_s, peer.detection_probability,
+                   peer.clutter_density_per_m3)
 
 
 def _transition_model(noise_std: float):
@@ -109,7 +125,8 @@ def track_with_stone_soup(plots: Plots, settings: StoneSoupSettings) -> dict[str
         associator, track_updater = GNNWith2DAssignment(distance), updater
     else:  # the tracks' update is the mixture of a track's hypotheses (Stone Soup's PDAUpdater)
         associator = JPDAwithEHM(PDAHypothesiser(predictor, updater, settings.clutter_density,
-                                                 prob_detect=settings.detection_probability, prob_gate=0.999))
+                                                 prob_detect=settings.detection_probability,
+                                                 prob_gate=settings.gate_probability))
         track_updater = PDAUpdater(measurement_model=None, gm_method=True)  # each plot with its own covariance
     deleter = UpdateTimeDeleter(timedelta(seconds=settings.delete_after_s))
     prior = GaussianState(np.zeros((6, 1)), np.diag([0.0, settings.velocity_std_mps ** 2] * 3))

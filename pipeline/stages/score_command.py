@@ -172,7 +172,7 @@ def run_score(params: Params, tracks_path: Path | None, cat062_path: Path | None
     if cat062_path is not None and first_date is None:
         raise io.InputError("CAT062 carries only the time of day: give --date (UTC date of the first record)")
     interval = update_interval_s if update_interval_s is not None else 60.0 / params.radar.rotation_rpm
-    settings = Settings(update_interval_s=interval)
+    settings = Settings.from_params(interval, params.scorecard)
     if tracks_path is not None:
         updates, track_scenarios = read_table_tracks(tracks_path)
     else:

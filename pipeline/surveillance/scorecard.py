@@ -50,6 +50,7 @@ from scipy.interpolate import make_interp_spline
 
 from pipeline.geometry import geodesy
 from pipeline.geometry.asterix_units import NAUTICAL_MILE_M
+from pipeline.params import Scorecard
 
 
 ROUNDING = 1e-9  # a gap of exactly long_gap_scans update intervals, to this relative rounding, is not long
@@ -57,15 +58,20 @@ ROUNDING = 1e-9  # a gap of exactly long_gap_scans update intervals, to this rel
 
 @dataclass(frozen=True)
 class Settings:
-    """The scorecard's choices where its sources leave one open (module docstring)."""
+    """The scorecard's choices where its sources leave one open (module docstring): the update interval (the
+    radar's scan period) and params' `scorecard` section (`from_params`), each documented there."""
 
     update_interval_s: float          # the radar's scan period: the update interval ED-129C's gaps are counted in
-    association_m: float = 2000.0     # an update farther than this from every target goes to none (the bench's GOSPA cutoff)
-    miss_tolerance_scans: float = 0.5  # a gap up to (1 + this) update intervals is no miss (a plot's place in the scan
-                                       # moves it by a fraction of a scan)
-    long_gap_scans: float = 3.3       # ED-129C: a long gap is longer than 3 x update interval x 1.1
-    manoeuvre_mps2: float = 1.0       # true horizontal acceleration above which an update is manoeuvring (a 200 m/s
-                                      # aircraft turning at 0.3 deg/s; a standard-rate turn gives 10.5 m/s^2)
+    association_m: float              # an update farther than this from every target goes to none
+    miss_tolerance_scans: float       # a gap up to (1 + this) update intervals is no miss
+    long_gap_scans: float             # ED-129C: a long gap is longer than 3 x update interval x 1.1
+    manoeuvre_mps2: float             # true horizontal acceleration above which an update is manoeuvring
+
+    @classmethod
+    def from_params(cls, update_interval_s: float, section: Scorecard) -> Settings:
+        """The settings of params' `scorecard` section for a radar of scan period `update_interval_s`."""
+        return cls(update_interval_s, section.association_m, section.miss_tolerance_scans, section.long_gap_scans,
+                   section.manoeuvre_mps2)
 
     def __post_init__(self) -> None:
         for name, low in (("update_interval_s", 0.0), ("association_m", 0.0), ("miss_tolerance_scans", -1.0),
