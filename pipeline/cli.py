@@ -88,6 +88,11 @@ def _evaluate_sites(args: argparse.Namespace) -> None:
     run_evaluate_sites(load_params(args.params), Path(args.models), Path(args.reports))
 
 
+def _peers(args: argparse.Namespace) -> None:
+    from pipeline.stages.peers_stage import run_peers
+    run_peers(load_params(args.params), Path(args.simulated), Path(args.routes), Path(args.models), Path(args.reports))
+
+
 def _evaluate_scenes(args: argparse.Namespace) -> None:
     from pipeline.stages.evaluate_scenes_stage import run_evaluate_scenes
     run_evaluate_scenes(load_params(args.params), Path(args.scenes), Path(args.models), Path(args.reports))
@@ -229,6 +234,11 @@ COMMANDS = {
                         "of the busiest scene (reports/scene_example.png).",
                         "python -m pipeline evaluate-scenes --scenes data/scenes --models models --reports reports",
                         ["params", "scenes", "models", "reports"]),
+    "peers": (_peers, "The field's peers on the same plots: Stone Soup's GNN and JPDA, our runs of peers.runs and the "
+              "oracle on test scenarios and a real-traffic scene, scored by GOSPA and the surveillance scorecard "
+              "beside the ECAC and ED-129C figures, with intervals (reports/peers.json, reports/peers.md).",
+              "python -m pipeline peers --simulated data/simulated --routes data/routes --models models "
+              "--reports reports", ["params", "simulated", "routes", "models", "reports"]),
     "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "

@@ -45,6 +45,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["evaluate"]["example_scenarios"] = 1
     tree["evaluate"]["example_run"] = "via_4000"
     tree["evaluate"].update(seeds=2, bootstrap_replicates=200)  # a second draw of every scenario, in seconds
+    tree["peers"].update(scenarios_per_strategy=1, window_s=60.0, runs=[])  # Stone Soup on a few hundred plots
     # evaluate_sites: the training site again (must give evaluate's metrics) and one across the world
     radar = tree["radar"]
     tree["evaluate"]["sites"] = [

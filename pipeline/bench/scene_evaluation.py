@@ -58,6 +58,7 @@ from pipeline.simulation import scenes, simulate
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.updates import confirmed_associations
 
 log = logging.getLogger("pipeline")
 
@@ -81,7 +82,7 @@ class Scene:
     draw: int = 0                  # its draw of noise, detections and clutter (0: the scenes stage's plots)
 
 
-def _clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
+def clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
     """The aircraft's true ECEF position at any time, held at its route's ends outside it."""
     trajectory = simulate.trajectory_of(route)
     start, end = trajectory.x[0], trajectory.x[-1]
@@ -108,7 +109,7 @@ def read_scenes(params: Params, scenes_dir: Path) -> list[Scene]:
         scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
         loaded.append(Scene(scene_id, part, scans, np.unique(np.concatenate([scans, truth_scan[mine]])),
                             truth_scan[mine][order], truth_id[mine][order],
-                            {int(route["route_id"][0]): _clipped(route) for route in aircraft},
+                            {int(route["route_id"][0]): clipped(route) for route in aircraft},
                             dict(zip(roles["route_id"], roles["strategy"]))))
     return loaded
 
@@ -190,14 +191,22 @@ class SceneResult:
 def evaluate_unit(evaluation: SceneEvaluation, run: Run, index: int, pictured: bool = False) -> SceneResult:
     """Track scene `index` (position in `evaluation.scenes`) with `run`, and score it; keep the
     updates and the assignment when the scene is `pictured`."""
-    params, scene = evaluation.params, evaluation.scenes[index]
-    management = evaluation.management[run]
+    scene = evaluation.scenes[index]
     start = time.perf_counter()
     updates = evaluation.runs[run](scene)
     seconds = time.perf_counter() - start
+    return scene_result(evaluation.params, scene, updates, confirmed_associations(updates, evaluation.management[run]),
+                        seconds, pictured)
+
+
+def scene_result(params: Params, scene: Scene, updates: dict[str, np.ndarray], confirmed: np.ndarray, seconds: float,
+                 pictured: bool = False) -> SceneResult:
+    """Score a scene's updates (an update table's track ids, times, plot ids and positions), those `confirmed`
+    (U,) bool the estimates (see the module docstring), tracked in `seconds`; keep the updates and the
+    assignment when `pictured`."""
     scan_of_plot = dict(zip(scene.plots.plot_id.tolist(), scene.scans.tolist()))
     update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
-    scored = scene_gospa(scene, ospa.scan_estimates(updates, update_scans, management),
+    scored = scene_gospa(scene, ospa.marked_estimates(updates, update_scans, confirmed),
                          params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.unique(scene.truth_id)
     return SceneResult(gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),

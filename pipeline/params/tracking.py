@@ -368,8 +368,8 @@ class Peers(Section):
     the oracle on the same plots, scored by GOSPA and the surveillance scorecard, with intervals."""
 
     scenarios_per_strategy: int = knob("the first this many scenarios of each route strategy of evaluate.split", 1)
-    window_s: float = knob("each of them from its first plot for this long (s; 0: whole): Stone Soup tracks about "
-                           "100 plots a second", 0.0)
+    window_s: float = knob("each of them, and the real-traffic scene, from its first plot for this long (s; 0: "
+                           "whole): Stone Soup tracks about 100 plots a second", 0.0)
     runs: tuple[str, ...] = knob("our runs (names of evaluate.runs) set beside Stone Soup's ([]: those of "
                                  "evaluate.scene_runs)", why="must be a list of run names")
     stone_soup: StoneSoupPeer = knob("Stone Soup's trackers")

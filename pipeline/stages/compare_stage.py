@@ -40,7 +40,7 @@ from pipeline.learning import filter_holdout, materials, model_eval, windows
 from pipeline.learning.kinds import KINDS
 from pipeline.learning.scaling import STATE_FEATURES
 from pipeline.params import Params
-from pipeline.reports import figures, fusion_tables, site_report
+from pipeline.reports import figures, fusion_tables, peers_tables, site_report
 from pipeline.reports.comparison_tables import (
     CONTINUITY_INTRO,
     FILTER_LABELS,
@@ -138,6 +138,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     intervals = {"trackers": _read_json(reports_dir / "tracker_intervals.json", "evaluate"),
                  "scenes": _read_json(reports_dir / "scene_intervals.json", "evaluate_scenes")}
     fusion = _read_json(reports_dir / "fusion.json", "fusion")
+    peers = {"report": _read_json(reports_dir / "peers.json", "peers"),
+             "intervals": _read_json(reports_dir / "peers_intervals.json", "peers")}
     networks = _read_json(reports_dir / "models.json", "models_report")
     tuning = _read_json(reports_dir / "kalman_tuning.json", "tune_kalman")
     filters = load_settings(models_dir / "kalman_tuned.json")
@@ -170,7 +172,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                                                              "example")},
                              "runs": {name: {m: values.get(m) for m in SCENE_METRICS}
                                       for name, values in scenes["runs"].items()}},
-                  "fusion": fusion, "intervals": intervals}
+                  "fusion": fusion, "intervals": intervals, "peers": peers}
     site_part = sites_section(sites, runs)
     gospa_part = gospa_table(runs)
     text = "\n\n".join([
@@ -196,6 +198,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                                                    "(scene_example.png)",
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png"),
+        f"## {peers_tables.TITLE}", *peers_tables.section(peers["report"], peers["intervals"]),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         f"## {SCALED_TITLE}", SCALED_INTRO, *scaled_filter_tables(detailed, scaled),
         f"## Tuning (on the {tuning['split']} split's target plots, cost {tuning['cost']})", tuning_table(tuning),

@@ -1,0 +1,278 @@
+"""The field's peers on the same plots (issue 33), scored as air-traffic surveillance scores a tracker (issue 32).
+
+Runs, each on every recording of every material:
+
+- Stone Soup's trackers (`pipeline.peers.stone_soup`, one per `peers.stone_soup.associations`: `stone_soup_gnn`,
+  `stone_soup_jpda`), on our tuned CV model and our chi-square gate;
+- our runs (`peers.runs`, runs of `evaluate.runs`), each under its own track management rule;
+- the registered references of `evaluate.references` (the oracle: the tuned IMM given each plot's aircraft).
+
+Materials (`MATERIALS`):
+
+- `test`: the first `peers.scenarios_per_strategy` scenarios of each route strategy of `evaluate.split` whose
+  aircraft is in coverage in the window, each from its first plot for `peers.window_s` (the simulate stage's
+  plots, one draw): Stone Soup tracks about 100 plots a second, so the whole split (285,000 plots) would take
+  hours a tracker;
+- `real_traffic`: the aircraft of the OpenSky recording `peers.real_traffic.states` flown past params' radar moved
+  to `peers.real_traffic`'s site (`pipeline.simulation.real_traffic`), one scene from its first plot for
+  `peers.window_s`; each stretch of an aircraft's reports is a target of its own (an aircraft silent for
+  `real_traffic.GAP_S` is a new track for any tracker).
+
+Every unit (run, recording) is tracked, timed and scored twice, on the confirmed updates (ours by the run's
+track management rule, Stone Soup's from the update that confirms a track, `min_points`, on):
+
+- GOSPA with its parts, track switches, tracks per truth, fragmentation and purity, as the scenes are scored
+  (`scene_evaluation.scene_result`);
+- the surveillance scorecard's parts (`pipeline.surveillance.scorecard`, params' `scorecard`, the update interval
+  the radar's scan period) against the per-scan truth.
+
+A run's metrics on a material pool its recordings (`run_metrics`); on `test` their 95 % intervals and the
+paired intervals of `PAIRED` between runs resample the scenarios (`pipeline.bench.intervals`); the real-traffic
+scene is one recording, so it has none. Units run on the bench's engine (`pipeline.bench.engine`), largest
+first; results are put together by run and recording, never in the order they finish.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from pipeline import io
+from pipeline.bench import engine, evaluation, intervals, ospa, scene_evaluation
+from pipeline.bench.runs import Run, record
+from pipeline.bench.scene_evaluation import Scene, SceneResult
+from pipeline.filters import classical_filters
+from pipeline.params import STRATEGIES, Params
+from pipeline.peers import stone_soup
+from pipeline.progress import progress_logger
+from pipeline.recordings import opensky_states, plot_table
+from pipeline.simulation import real_traffic, routes, simulate
+from pipeline.surveillance import scorecard
+from pipeline.tracker import registry
+from pipeline.tracker.loading import load_models
+from pipeline.tracker.run import track
+from pipeline.tracker.updates import confirmed_associations, positions
+
+log = logging.getLogger("pipeline")
+
+TEST, REAL_TRAFFIC = "test", "real_traffic"
+MATERIALS = (TEST, REAL_TRAFFIC)
+STONE_SOUP = "stone_soup"      # the family of Stone Soup's runs, and their names' prefix
+STONE_SOUP_COST = 60.0         # a Stone Soup run's cost per plot against a classical run's 1.5 (units largest first)
+REAL_TRAFFIC_FOLDER = "pipeline-real-traffic"
+PAIRED = ("GOSPA", "GOSPA_missed", "position_rms_m", "probability_of_update", "ratio_of_long_gaps",
+          "tracks_per_aircraft")  # the verdicts'
+INTERVAL_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches",
+                    "tracks_per_truth", "probability_of_update", "ratio_of_long_gaps", "position_error_mean_m",
+                    "position_error_sigma_m", "position_rms_m", "along_track_rms_m", "across_track_rms_m",
+                    "velocity_rms_straight_mps", "velocity_rms_manoeuvring_mps", "straight_within_0_25_nm",
+                    "manoeuvring_within_1_nm", "tracks_per_aircraft", "false_tracks", "initiation_mean_s")
+
+
+@dataclass(frozen=True)
+class PeerRun:
+    """A run of the peers stage: its name (the reports' key), family (`STONE_SOUP`, or the registry's family of
+    our method, `registry.REFERENCE` for a reference), our run's record (None for Stone Soup's) or Stone Soup's
+    association (None for ours), and its cost per plot relative to the others (units largest first)."""
+
+    name: str
+    family: str
+    run: Run | None
+    association: str | None
+    cost: float
+
+
+def peer_runs(params: Params) -> list[PeerRun]:
+    """Stone Soup's runs, then ours (`peers.runs`), then the registered references, in params order."""
+    ours = [record(run) for run in (*params.peers.runs_of(params.evaluate), *params.evaluate.reference_runs())
+            if run.method in registry.METHODS]
+    return ([PeerRun(f"{STONE_SOUP}_{association}", STONE_SOUP, None, association, STONE_SOUP_COST)
+             for association in params.peers.stone_soup.associations]
+            + [PeerRun(run.name, run.family, run, None, run.registered.relative_cost) for run in ours])
+
+
+@dataclass
+class Recording:
+    """One recording a run tracks: its material, the scene (plots, scans, the aircraft in coverage at each scan,
+    their trajectories) and the truth the scorecard reads (each scan's true position, `scorecard.Truth`)."""
+
+    material: str
+    scene: Scene
+    truth: scorecard.Truth
+    update_interval_s: float       # the radar's scan period
+
+
+def _recordings(params: Params, material: str, folder: Path, flown: dict[int, dict[str, np.ndarray]],
+                roles: dict[int, str], chosen: Callable[[dict[int, tuple[Scene, scorecard.Truth]]], list[int]],
+                window_s: float) -> list[Recording]:
+    """The recordings of the simulated files in `folder` (simulate's plots, truth and radar), each scenario from
+    its first plot for `window_s` (0: whole); `flown` holds each target's route by target id, `roles` its role;
+    `chosen` picks the scenario ids kept from every candidate's scene and truth."""
+    table = io.read_parquet(folder / "plots.parquet", simulate.PLOT_SCHEMA)
+    plots = plot_table.read_parquet_plots(folder / "plots.parquet", folder / "radar.parquet", params.radar)
+    scan_of_plot = dict(zip(table.column("plot_id").to_numpy().tolist(), table.column("scan").to_numpy().tolist()))
+    truth = io.read_parquet(folder / "truth.parquet", simulate.TRUTH_SCHEMA)
+    column = {name: truth.column(name).to_numpy(zero_copy_only=False)
+              for name in ("scenario_id", "target_id", "scan", "time_unix_s", "in_coverage")}
+    position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"], axis=1)
+    candidates = {}
+    for scenario_id, part in plots.scenarios():
+        end = part.time[0] + window_s if window_s > 0 else np.inf
+        part = part.take(np.flatnonzero(part.time < end))
+        mine = (column["scenario_id"] == scenario_id) & (column["time_unix_s"] < end)
+        covered = mine & column["in_coverage"]
+        order = np.lexsort((column["target_id"][covered], column["scan"][covered]))
+        scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
+        targets = np.unique(column["target_id"][mine]).tolist()
+        scene = Scene(scenario_id, part, scans, np.unique(np.concatenate([scans, column["scan"][covered]])),
+                      column["scan"][covered][order], column["target_id"][covered][order],
+                      {t: scene_evaluation.clipped(flown[t]) for t in targets}, {t: roles[t] for t in targets})
+        candidates[scenario_id] = scene, scorecard.Truth(column["target_id"][mine].astype(np.int64),
+                                                         column["time_unix_s"][mine], position[mine],
+                                                         column["in_coverage"][mine])
+    interval = 60.0 / params.radar.rotation_rpm
+    return [Recording(material, *candidates[scenario_id], interval) for scenario_id in chosen(candidates)]
+
+
+def test_recordings(params: Params, simulated_dir: Path, routes_dir: Path) -> list[Recording]:
+    """The `test` material (module docstring): scenarios of `evaluate.split`, `peers.scenarios_per_strategy` of
+    each strategy whose aircraft is in coverage within `peers.window_s`, in scenario id order."""
+    split = params.evaluate.split
+    route_table = io.read_parquet(routes_dir / f"{split}.parquet", routes.ROUTE_SCHEMA)
+    flown = {int(route["route_id"][0]): route for route in simulate.routes_by_id(route_table)}
+    strategy = dict(zip(route_table.column("route_id").to_pylist(), route_table.column("strategy").to_pylist()))
+
+    def chosen(candidates: dict[int, tuple[Scene, scorecard.Truth]]) -> list[int]:
+        seen = [s for s in sorted(candidates) if candidates[s][1].in_coverage.any()]
+        return sorted(s for kind in STRATEGIES
+                      for s in [s for s in seen if strategy[s] == kind][:params.peers.scenarios_per_strategy])
+
+    return _recordings(params, TEST, simulated_dir / split, flown, strategy, chosen, params.peers.window_s)
+
+
+def real_traffic_recordings(params: Params, root: Path) -> list[Recording]:
+    """The `real_traffic` material (module docstring): one recording, or none when `peers.real_traffic.states` is
+    ''. The states file is read relative to `root` (the repository)."""
+    site = params.peers.real_traffic
+    if not site.states:
+        return []
+    states, _ = opensky_states.read_states(root / site.states)
+    moved = real_traffic.at_site(params, site.latitude_deg, site.longitude_deg, site.height_m)
+    flown = [{**route, "target_id": route["route_id"].astype(np.int32)} for route in real_traffic.routes_of(states)]
+    plots, truth = real_traffic.simulate_scene(moved, flown)
+    by_target = {int(route["route_id"][0]): route for route in flown}
+    with io.temporary_folder(REAL_TRAFFIC_FOLDER) as folder:
+        simulate.write_split(plots, truth, simulate.radar_description(moved), folder)
+        return _recordings(moved, REAL_TRAFFIC, folder, by_target, dict.fromkeys(by_target, REAL_TRAFFIC),
+                           lambda candidates: [s for s in sorted(candidates) if candidates[s][1].in_coverage.any()],
+                           params.peers.window_s)
+
+
+Tracked = tuple[dict[str, np.ndarray], np.ndarray]  # the updates (with `velocity`) and which are confirmed
+
+
+@dataclass
+class PeerBench:
+    """What every unit reads: params, the recordings of every material, each run as name -> track(recording)
+    (`Tracked`); and what worker processes prepare their own copy from (`prepare`'s arguments)."""
+
+    params: Params
+    arguments: tuple
+    recordings: list[Recording]
+    runs: dict[str, Callable[[Recording], Tracked]]
+    peers: list[PeerRun]
+
+
+def _tracker(params: Params, models, peer: PeerRun, cv: classical_filters.FilterSettings
+             ) -> Callable[[Recording], Tracked]:
+    """The run `peer` as recording -> (updates, confirmed)."""
+    if peer.association is not None:
+        settings = stone_soup.StoneSoupSettings.from_params(peer.association, params.peers.stone_soup, cv,
+                                                            params.tracker.association.kalman_gate_probability)
+
+        def stone_soup_run(recording: Recording) -> Tracked:
+            updates = stone_soup.track_with_stone_soup(recording.scene.plots, settings)
+            return updates, updates["confirmed"]
+        return stone_soup_run
+    run, rule = peer.run, evaluation.run_rule(params, peer.run)
+
+    def our_run(recording: Recording) -> Tracked:
+        plots = recording.scene.plots
+        if run.reference:  # the oracle: the aircraft's plots alone, with their true association
+            plots = plots.take(np.flatnonzero(plots.target_id != plot_table.NO_TARGET))
+        composed = registry.compose(run.method, models, params.tracker, run.window_m,
+                                    evaluation.tracker_seed(params, recording.scene), run.management)
+        updates = track(plots, dataclasses.replace(composed, records_velocity=True))
+        return updates, confirmed_associations(updates, rule)
+    return our_run
+
+
+def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, root: Path) -> PeerBench:
+    """The recordings of both materials and every run (`peer_runs`), with what the runs need loaded."""
+    peers = peer_runs(params)
+    models = load_models(models_dir, params, [peer.run.method for peer in peers if peer.run is not None])
+    cv = classical_filters.load_settings(models_dir / "kalman_tuned.json")["cv"]
+    recordings = test_recordings(params, simulated_dir, routes_dir) + real_traffic_recordings(params, root)
+    return PeerBench(params, (params, simulated_dir, routes_dir, models_dir, root), recordings,
+                     {peer.name: _tracker(params, models, peer, cv) for peer in peers}, peers)
+
+
+@dataclass
+class PeerResult:
+    """What tracking one recording with one run contributes: the scenes' metrics' part and the scorecard's."""
+
+    scene: SceneResult
+    card: scorecard.Parts
+
+
+def evaluate_unit(bench: PeerBench, name: str, index: int) -> PeerResult:
+    """Track recording `index` (position in `bench.recordings`) with run `name`, and score it."""
+    recording = bench.recordings[index]
+    start = time.perf_counter()
+    updates, confirmed = bench.runs[name](recording)
+    seconds = time.perf_counter() - start
+    velocity = updates.get("velocity", np.full((len(confirmed), 3), np.nan))
+    settings = scorecard.Settings.from_params(recording.update_interval_s, bench.params.scorecard)
+    card = scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
+                                                  velocity, confirmed), recording.truth, settings)
+    return PeerResult(scene_evaluation.scene_result(bench.params, recording.scene, updates, confirmed, seconds), card)
+
+
+def run_metrics(results: list[PeerResult], plots: int) -> dict[str, float]:
+    """A run's metrics over the recordings of `results`: the scenes' (`scene_evaluation.run_metrics`) and the
+    scorecard's indicators (`scorecard.combined`), the recordings pooled; `plots` is theirs, for the speed."""
+    return {**scene_evaluation.run_metrics([r.scene for r in results], plots),
+            **scorecard.combined([r.card for r in results])}
+
+
+def metric_intervals(params: Params, recordings: list[Recording], units: dict[str, list[PeerResult]]) -> dict:
+    """The intervals of INTERVAL_METRICS of every run and of the differences of PAIRED between runs over
+    `recordings` (one material's), resampling the recordings (`intervals.run_intervals`)."""
+    chosen = params.evaluate
+    return intervals.run_intervals(units, lambda results: run_metrics(results, 0), INTERVAL_METRICS, PAIRED,
+                                   chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
+                                   [recording.scene.scenario_id for recording in recordings])
+
+
+def evaluate_all(bench: PeerBench, workers: int) -> dict[str, dict[str, list[PeerResult]]]:
+    """Every run over every recording on `workers` workers (`engine.completed_units`): by material, by run name
+    (in `bench.peers` order), each run's results in recording order."""
+    recordings, cost = bench.recordings, {peer.name: peer.cost for peer in bench.peers}
+    units = sorted(((peer.name, index) for peer in bench.peers for index in range(len(recordings))),
+                   key=lambda unit: -cost[unit[0]] * len(recordings[unit[1]].scene.plots))
+    workers = max(1, min(workers, len(units)))
+    done_units: dict[tuple[str, int], PeerResult] = {}
+    report = progress_logger(f"peers ({engine.where(workers)})")
+    for done, ((name, index), result) in enumerate(engine.completed_units(
+            units, workers, evaluate_unit, bench, prepare, bench.arguments), start=1):
+        done_units[name, index] = result
+        report(done, len(units))
+    return {material: {peer.name: [done_units[peer.name, index] for index, recording in enumerate(recordings)
+                                   if recording.material == material] for peer in bench.peers}
+            for material in MATERIALS if any(recording.material == material for recording in recordings)}

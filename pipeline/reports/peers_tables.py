@@ -1,0 +1,140 @@
+"""The peers stage's report as Markdown (`reports/peers.md`, and the comparison's section): per material, every
+run's GOSPA and scorecard with the test material's 95 % intervals, the reference figures passed or failed, and the
+verdicts between the best of Stone Soup and the best of ours (`reports/peers.json`, `pipeline.bench.peers`)."""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+TITLE = "The field's peers on the same plots: Stone Soup, ours and the oracle"
+STONE_SOUP = "stone_soup"
+REFERENCE = "reference"
+COLUMNS = (  # metric, header, format
+    ("GOSPA", "GOSPA (m)", "{:.0f}"), ("GOSPA_missed", "missed (m)", "{:.0f}"), ("GOSPA_false", "false (m)", "{:.0f}"),
+    ("tracks_per_aircraft", "tracks per aircraft", "{:.2f}"), ("track_swaps", "swaps", "{:.0f}"),
+    ("position_rms_m", "position RMS (m)", "{:.0f}"), ("position_error_mean_m", "mean (m)", "{:.0f}"),
+    ("position_error_sigma_m", "σ (m)", "{:.0f}"), ("velocity_rms_straight_mps", "velocity RMS straight (m/s)", "{:.1f}"),
+    ("straight_within_0_25_nm", "straight ≤ 0.25 NM", "{:.2%}"), ("manoeuvring_within_1_nm", "manoeuvring ≤ 1 NM",
+                                                                    "{:.2%}"),
+    ("probability_of_update", "probability of update", "{:.3f}"), ("ratio_of_long_gaps", "long gaps", "{:.2%}"),
+    ("false_tracks", "false tracks", "{:.0f}"), ("initiation_mean_s", "initiation (s)", "{:.0f}"),
+    ("plots_per_second", "plots/s", "{:,.0f}"))
+WITH_INTERVAL = ("GOSPA", "position_rms_m", "probability_of_update", "ratio_of_long_gaps")
+VERDICTS = (("GOSPA", "GOSPA", True), ("position_rms_m", "position RMS", True),
+            ("probability_of_update", "probability of update", False), ("ratio_of_long_gaps", "ratio of long gaps", True))
+
+
+def _shown(value: float | None, form: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "n/a"
+    return form.format(value)
+
+
+def _cell(metric: str, form: str, value: float | None, interval: list[float] | None) -> str:
+    text = _shown(value, form)
+    if interval is None or metric not in WITH_INTERVAL or not all(math.isfinite(v) for v in interval):
+        return text
+    return f"{text} [{_shown(interval[0], form)}, {_shown(interval[1], form)}]"
+
+
+def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> str:
+    """Every run's row (COLUMNS), best GOSPA first; the 95 % interval beside WITH_INTERVAL where given."""
+    lines = ["| run | " + " | ".join(header for _, header, _ in COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
+        own = (run_intervals or {}).get(name, {})
+        lines.append(f"| {name} | " + " | ".join(_cell(metric, form, runs[name].get(metric), own.get(metric))
+                                                 for metric, _, form in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def references_table(references: Mapping[str, list[dict]]) -> str:
+    """Each run against each reference figure (ECAC single- and multi-radar, ED-129C): pass or fail."""
+    first = next(iter(references.values()))
+    header = [f"{row['figures']}: {row['indicator']} {'≤' if row['at_most'] else '≥'} {_figure(row)}" for row in first]
+    lines = ["| run | " + " | ".join(header) + " | passes |", "|---" * (len(header) + 2) + "|"]
+    for name, rows in references.items():
+        verdicts = [{True: "pass", False: "**fail**", None: "n/a"}[row["passes"]] for row in rows]
+        lines.append(f"| {name} | " + " | ".join(verdicts) + f" | {verdicts.count('pass')} of {len(rows)} |")
+    sources = sorted({row["source"] for row in first})
+    return "\n".join(lines) + "\n\nSources: " + "; ".join(sources) + "."
+
+
+def _figure(row: dict) -> str:
+    value = row["reference"]
+    return f"{value:.2%}" if value <= 1.0 else f"{value:.0f} m"
+
+
+def best(runs: Mapping[str, dict], families: Mapping[str, str], stone_soup: bool) -> str | None:
+    """The run of lowest GOSPA among Stone Soup's (`stone_soup`) or among ours (no reference)."""
+    chosen = [name for name in runs if (families[name] == STONE_SOUP) == stone_soup and families[name] != REFERENCE]
+    return min(chosen, key=lambda name: runs[name]["GOSPA"]) if chosen else None
+
+
+def verdicts(report: dict, intervals: dict) -> list[str]:
+    """The best of ours against the best of Stone Soup on the test material, each metric of VERDICTS with the
+    paired 95 % interval of the difference (ours minus Stone Soup's): a win only when the interval excludes 0."""
+    runs, families = report["runs"].get("test", {}), report["families"]
+    ours, theirs = best(runs, families, False), best(runs, families, True)
+    if ours is None or theirs is None:
+        return []
+    paired = intervals.get("test", {}).get("paired", {})
+    lines = []
+    for metric, label, lower_better in VERDICTS:
+        difference = runs[ours][metric] - runs[theirs][metric]
+        low, high = paired.get(metric, {}).get(ours, {}).get(theirs, [math.nan, math.nan])
+        if not (math.isfinite(low) and math.isfinite(high)) or low <= 0.0 <= high:
+            outcome = "a tie within the noise"
+        else:
+            outcome = f"{ours if (difference < 0) == lower_better else theirs} wins"
+        lines.append(f"- {label}: {ours} {runs[ours][metric]:.4g} against {theirs} {runs[theirs][metric]:.4g}, "
+                     f"difference {difference:+.4g}, paired 95 % interval [{low:.4g}, {high:.4g}]: {outcome}.")
+    return lines
+
+
+def materials_intro(report: dict) -> str:
+    """What each material holds (`reports/peers.json`'s materials)."""
+    parts = []
+    test = report["materials"].get("test")
+    if test:
+        parts.append(f"**Test scenarios**: {len(test['recordings'])} scenarios of the {test['split']} split (the first of "
+                     f"each route strategy), each its first {test['window_s'] / 60:.0f} minutes "
+                     f"({test['plots']['target']:,} target and {test['plots']['false']:,} false plots), one aircraft "
+                     "each; intervals resample the scenarios.")
+    real = report["materials"].get("real_traffic")
+    if real:
+        parts.append(f"**Real traffic**: {real['targets']} aircraft tracks of OpenSky's recording ({real['states']}) "
+                     f"past our radar at {real['site']['latitude_deg']:g}°, {real['site']['longitude_deg']:g}° "
+                     f"({real['plots']['target']:,} target and {real['plots']['false']:,} false plots), one scene: no "
+                     "interval.")
+    return " ".join(parts)
+
+
+INTRO = ("Every run tracks the same plots (`dvc repro peers`, `pipeline/bench/peers.py`): Stone Soup's GNN and JPDA "
+         "set up as its tutorials set them up on our tuned CV model and our chi-square gate "
+         "(`pipeline/peers/stone_soup.py`), our runs of `peers.runs`, and the oracle (the tuned IMM given each "
+         "plot's aircraft). Scored on the confirmed updates: GOSPA (as the scenes) and the surveillance scorecard "
+         "(`pipeline/surveillance/scorecard.py`: EUROCAE ED-129C's probability of update and ratio of long gaps, the "
+         "ECAC guidelines' position error figures, velocity, false tracks, swaps, initiation time). plots/s: tracking "
+         "alone, one core.")
+
+
+def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
+    """The report's blocks: intro, verdicts, then per material its table and the reference figures."""
+    blocks = [INTRO, materials_intro(report)]
+    lines = verdicts(report, intervals)
+    if lines:
+        blocks += [f"{heading} Who wins: the best of ours against the best of Stone Soup (test scenarios)",
+                   "\n".join(lines)]
+    for material, title in (("test", "Test scenarios"), ("real_traffic", "Real traffic")):
+        if material in report["runs"]:
+            runs_intervals = intervals.get(material, {}).get("runs")
+            blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals),
+                       f"{heading} {title}: the reference figures", references_table(report["references"][material])]
+    return blocks
+
+
+def report_markdown(report: dict, intervals: dict) -> str:
+    """`reports/peers.md`."""
+    return "\n\n".join([f"# {TITLE}", "Generated by `dvc repro peers` from `reports/peers.json` and "
+                        "`reports/peers_intervals.json`.", *section(report, intervals, "##")]) + "\n"

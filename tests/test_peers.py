@@ -1,0 +1,89 @@
+"""The peers stage (`pipeline.bench.peers`): Stone Soup's trackers, ours and the oracle on the same plots, scored by
+GOSPA and the surveillance scorecard; and its report's verdicts (`pipeline.reports.peers_tables`)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import pytest
+
+from pipeline.bench import peers
+from pipeline.reports import peers_tables
+from tests import tracker_fixtures as tf
+
+
+def test_the_runs_are_stone_soups_then_ours_then_the_oracle() -> None:
+    params = tf.make_params()
+    runs = peers.peer_runs(params)
+    ours = [run.name for run in params.peers.runs_of(params.evaluate)]  # in evaluate.runs' order
+    assert sorted(ours) == sorted(params.peers.runs)
+    assert [run.name for run in runs] == ["stone_soup_gnn", "stone_soup_jpda", *ours, "oracle_reference"]
+    assert [run.family for run in runs][:2] == [peers.STONE_SOUP] * 2 and runs[-1].family == "reference"
+    assert all(run.association is None for run in runs[2:]) and runs[0].run is None
+
+
+def _report(ours_gospa: float, theirs_gospa: float, paired: list[float]) -> tuple[dict, dict]:
+    metrics = {name: {"GOSPA": value, "position_rms_m": 150.0, "probability_of_update": 0.95,
+                      "ratio_of_long_gaps": 0.01}
+               for name, value in (("imm_gnn_4000", ours_gospa), ("stone_soup_jpda", theirs_gospa),
+                                   ("oracle_reference", 1.0))}
+    report = {"runs": {"test": metrics}, "families": {"imm_gnn_4000": "classical", "stone_soup_jpda": "stone_soup",
+                                                      "oracle_reference": "reference"}}
+    no_difference = [-1.0, 1.0]
+    intervals = {"test": {"paired": {"GOSPA": {"imm_gnn_4000": {"stone_soup_jpda": paired}},
+                                     **{name: {"imm_gnn_4000": {"stone_soup_jpda": no_difference}} for name in
+                                        ("position_rms_m", "probability_of_update", "ratio_of_long_gaps")}}}}
+    return report, intervals
+
+
+def test_a_verdict_is_a_win_only_beyond_the_noise() -> None:
+    """The best of ours (not the oracle, a reference) against the best of Stone Soup: GOSPA lower by 20 m with an
+    interval excluding 0 is a win; the other metrics, equal with an interval about 0, are ties."""
+    lines = peers_tables.verdicts(*_report(200.0, 220.0, [-30.0, -10.0]))
+    assert lines[0].startswith("- GOSPA: imm_gnn_4000 200 against stone_soup_jpda 220") and "imm_gnn_4000 wins" in lines[0]
+    assert all("a tie within the noise" in line for line in lines[1:])
+    assert "stone_soup_jpda wins" in peers_tables.verdicts(*_report(230.0, 220.0, [5.0, 15.0]))[0]
+    assert "a tie" in peers_tables.verdicts(*_report(210.0, 220.0, [-15.0, 4.0]))[0]
+
+
+def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
+    """`dvc repro peers` in a copy of the tiny pipeline: every run on both materials, the scorecard's indicators
+    beside the reference figures, intervals over the test scenarios, the Markdown report."""
+    from tests.servers import dvc
+    repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
+    dvc(repository, "repro", "--single-item", "peers")
+    report = json.loads((repository / "reports" / "peers.json").read_text())
+    params = tf.make_params()
+    names = ["stone_soup_gnn", "stone_soup_jpda", "via_4000", "ae_5000", "kalman_cv_4000", "oracle_reference"]
+    assert list(report["materials"]) == ["test", "real_traffic"]
+    test = report["materials"]["test"]
+    assert len(test["recordings"]) == len(set(test["strategies"].values())) <= 4 and test["window_s"] == 60.0
+    assert report["materials"]["real_traffic"]["targets"] > 10
+    for material in ("test", "real_traffic"):
+        assert list(report["runs"][material]) == names
+        for name, metrics in report["runs"][material].items():
+            assert 0.0 <= metrics["GOSPA"] <= params.evaluate.gospa_cutoff_m, (material, name)
+            assert 0.0 <= metrics["probability_of_update"] <= 1.0 and metrics["plots_per_second"] > 0
+        oracle = report["runs"][material]["oracle_reference"]
+        assert oracle["false_tracks"] == 0 and oracle["position_rms_m"] < 400.0
+        judged = report["references"][material]["stone_soup_gnn"]
+        assert {row["figures"] for row in judged} == {"single-radar", "multi-radar", "ED-129C"}
+    intervals = json.loads((repository / "reports" / "peers_intervals.json").read_text())["test"]
+    low, high = intervals["runs"]["kalman_cv_4000"]["GOSPA"]
+    assert math.isnan(low) or low <= report["runs"]["test"]["kalman_cv_4000"]["GOSPA"] <= high
+    assert set(intervals["paired"]) == set(peers.PAIRED)
+    text = (repository / "reports" / "peers.md").read_text()
+    assert text.startswith(f"# {peers_tables.TITLE}") and "| stone_soup_jpda |" in text and "ED-129C" in text
+
+
+@pytest.mark.parametrize("association", ["gnn", "jpda"])
+def test_stone_soup_settings_name_the_gate_of_our_trackers(association: str) -> None:
+    from pipeline.filters.classical_filters import FilterSettings
+    from pipeline.peers.stone_soup import StoneSoupSettings
+    params = tf.make_params()
+    settings = StoneSoupSettings.from_params(association, params.peers.stone_soup,
+                                             FilterSettings("cv", (3.0,), 150.0, 10.0, 0.05, 0.9),
+                                             params.tracker.association.kalman_gate_probability)
+    assert settings.gate_probability == params.tracker.association.kalman_gate_probability
