@@ -47,3 +47,25 @@ def test_settings_come_from_params_and_our_tuned_cv() -> None:
     assert settings.gate_distance == pytest.approx(np.sqrt(16.266), abs=1e-3)  # chi-square 0.999, 3 dof
     with pytest.raises(ValueError, match="association 'pda'"):
         StoneSoupSettings.from_params("pda", params.peers.stone_soup, cv, 0.999)
+
+
+@pytest.mark.parametrize("association", ["gnn", "jpda"])
+def test_a_silent_track_is_deleted_and_a_later_aircraft_there_is_a_new_track(association: str) -> None:
+    """An aircraft tracked for 10 scans falls silent; a minute later another flies the same line: a track without a
+    plot for `delete_after_s` is deleted (JPDA's missed-detection hypotheses are no update), so the second aircraft
+    starts its own track rather than feeding the first's."""
+    params = tf.make_params()
+    radar = params.radar
+    first = tf.straight_features(radar, (40e3, 60e3, 9000.0), (180.0, 90.0, 0.0), 10)
+    second = tf.straight_features(radar, (40e3 + 180.0 * 120.0, 60e3 + 90.0 * 120.0, 9000.0), (180.0, 90.0, 0.0), 10,
+                                  t_offset=120.0)
+    clutter = tf.clutter_features(radar, 30, 2.0, np.random.default_rng(5), half_width_m=150e3)
+    ids = np.arange(20 + len(clutter))
+    features, plot_ids = tf.merge((first, ids[:10]), (second, ids[10:20]), (clutter, ids[20:]))
+    settings = StoneSoupSettings(association, noise_std=2.0, velocity_std_mps=300.0, gate_probability=0.999,
+                                 min_points=3, delete_after_s=20.0, batch_window_s=0.05, detection_probability=0.9,
+                                 clutter_density=1e-12)
+    updates = stone_soup.track_with_stone_soup(tf.plots_of(features, plot_ids, radar), settings)
+    track_of = dict(zip(updates["plot_id"].tolist(), updates["track_id"].tolist()))
+    assert track_of[5] != track_of[15]
+    assert {track_of[p] for p in range(12, 20)} == {track_of[15]} and {track_of[p] for p in range(2, 10)} == {track_of[5]}

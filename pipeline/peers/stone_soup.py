@@ -146,12 +146,12 @@ def track_with_stone_soup(plots: Plots, settings: StoneSoupSettings) -> dict[str
     for time, detections in scans():  # MultiTargetTracker's loop, which JPDA's hypotheses need written out
         associated = set()
         for track, hypothesis in associator.associate(tracks, detections, time).items():
-            if hypothesis:  # GNN: its detection; JPDA: some detection in its gate
+            singles = getattr(hypothesis, "single_hypotheses", [hypothesis])  # JPDA's: the missed detection's first
+            if any(singles):  # GNN: its detection; JPDA: some detection in its gate
                 track.append(track_updater.update(hypothesis))
-                associated |= {single.measurement for single in getattr(hypothesis, "single_hypotheses", [hypothesis])
-                               if single}
-            else:
-                track.append(hypothesis.prediction)
+                associated |= {single.measurement for single in singles if single}
+            else:  # no detection: the prediction, so the deleter sees no update (JPDA's mixture of the missed
+                track.append(singles[0].prediction)  # detection alone would count as one, and a track never end)
         tracks -= deleter.delete_tracks(tracks)
         started = initiator.initiate(detections - associated, time)
         tracks |= started

@@ -48,21 +48,28 @@ def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] |
     return "\n".join(lines)
 
 
+FIGURES = {"single-radar": "ECAC single-radar", "multi-radar": "ECAC multi-radar", "ED-129C": "ED-129C"}
+INDICATORS = {"position_error_mean_m": "mean", "position_error_sigma_m": "σ",
+              "straight_within_0_25_nm": "straight ≤ 0.25 NM", "manoeuvring_within_1_nm": "manoeuvring ≤ 1 NM",
+              "ratio_of_long_gaps": "long gaps"}
+
+
 def references_table(references: Mapping[str, list[dict]]) -> str:
     """Each run against each reference figure (ECAC single- and multi-radar, ED-129C): pass or fail."""
     first = next(iter(references.values()))
-    header = [f"{row['figures']}: {row['indicator']} {'≤' if row['at_most'] else '≥'} {_figure(row)}" for row in first]
-    lines = ["| run | " + " | ".join(header) + " | passes |", "|---" * (len(header) + 2) + "|"]
+    header = [f"{FIGURES.get(row['figures'], row['figures'])}: {INDICATORS.get(row['indicator'], row['indicator'])} "
+              f"{'≤' if row['at_most'] else '≥'} {_figure(row)}" for row in first]
+    lines = ["| run | " + " | ".join(header) + " | passed |", "|---" * (len(header) + 2) + "|"]
     for name, rows in references.items():
         verdicts = [{True: "pass", False: "**fail**", None: "n/a"}[row["passes"]] for row in rows]
         lines.append(f"| {name} | " + " | ".join(verdicts) + f" | {verdicts.count('pass')} of {len(rows)} |")
-    sources = sorted({row["source"] for row in first})
-    return "\n".join(lines) + "\n\nSources: " + "; ".join(sources) + "."
+    sources = list(dict.fromkeys(row["source"].split(":")[0] for row in first))
+    return "\n".join(lines) + "\n\nSources: " + "; ".join(sources) + " (`pipeline/surveillance/scorecard.py`)."
 
 
 def _figure(row: dict) -> str:
     value = row["reference"]
-    return f"{value:.2%}" if value <= 1.0 else f"{value:.0f} m"
+    return f"{value:.2%}" if row["indicator"] in INDICATORS and not row["indicator"].endswith("_m") else f"{value:.0f} m"
 
 
 def best(runs: Mapping[str, dict], families: Mapping[str, str], stone_soup: bool) -> str | None:
