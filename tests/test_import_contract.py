@@ -49,3 +49,20 @@ def test_every_stage_lists_the_code_it_runs_as_its_deps() -> None:
     stages = yaml.safe_load((REPOSITORY / "dvc.yaml").read_text())["stages"]
     wanted = stage_code_deps.stage_code_deps(stages, (REPOSITORY / "pipeline" / "cli.py").read_text())
     assert stage_code_deps.differences(stages, wanted) == {}
+
+
+def test_dvc_yaml_lists_every_stage_after_the_stages_it_reads() -> None:
+    """A stage comes after every stage whose outputs its deps name (a folder's or a file inside it), so a run in
+    dvc.yaml's order (`benchmarks/bench_pipeline.py` times the stages so) never reads a stale output: the compare
+    stage once came before fusion and read the committed fusion.json rather than the run's."""
+    stages = yaml.safe_load((REPOSITORY / "dvc.yaml").read_text())["stages"]
+    made_by = {}
+    for name, stage in stages.items():
+        for kind in ("outs", "metrics", "plots"):
+            for out in stage.get(kind, []):
+                made_by[next(iter(out)) if isinstance(out, dict) else out] = name
+    position = {name: index for index, name in enumerate(stages)}
+    late = [(name, dep, made_by[out]) for name, stage in stages.items() for dep in stage.get("deps", [])
+            for out in made_by if dep == out or dep.startswith(out + "/") or out.startswith(dep + "/")
+            if made_by[out] != name and position[made_by[out]] > position[name]]
+    assert late == []

@@ -57,17 +57,19 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
     report = json.loads((repository / "reports" / "peers.json").read_text())
     params = tf.make_params()
     names = ["stone_soup_gnn", "stone_soup_jpda", "via_4000", "ae_5000", "kalman_cv_4000", "oracle_reference"]
-    assert list(report["materials"]) == ["test", "real_traffic"]
+    assert set(report["materials"]) == {"test", "real_traffic"}
     test = report["materials"]["test"]
     assert len(test["recordings"]) == len(set(test["strategies"].values())) <= 4 and test["window_s"] == 60.0
     assert report["materials"]["real_traffic"]["targets"] > 10
     for material in ("test", "real_traffic"):
-        assert list(report["runs"][material]) == names
+        assert sorted(report["runs"][material]) == sorted(names)
         for name, metrics in report["runs"][material].items():
-            assert 0.0 <= metrics["GOSPA"] <= params.evaluate.gospa_cutoff_m, (material, name)
+            assert 0.0 <= metrics["GOSPA"] < math.inf, (material, name)  # GOSPA is no mean: it grows with aircraft
             assert 0.0 <= metrics["probability_of_update"] <= 1.0 and metrics["plots_per_second"] > 0
         oracle = report["runs"][material]["oracle_reference"]
-        assert oracle["false_tracks"] == 0 and oracle["position_rms_m"] < 400.0
+        assert oracle["false_tracks"] == 0 and oracle["position_rms_m"] < params.scorecard.association_m
+        bounds = report["materials"][material]["pcrb_horizontal_rms_m"]
+        assert set(bounds) == {"cv", "ca"} and all(0.0 < value < 1000.0 for value in bounds.values())
         judged = report["references"][material]["stone_soup_gnn"]
         assert {row["figures"] for row in judged} == {"single-radar", "multi-radar", "ED-129C"}
     intervals = json.loads((repository / "reports" / "peers_intervals.json").read_text())["test"]
@@ -76,6 +78,7 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
     assert set(intervals["paired"]) == set(peers.PAIRED)
     text = (repository / "reports" / "peers.md").read_text()
     assert text.startswith(f"# {peers_tables.TITLE}") and "| stone_soup_jpda |" in text and "ED-129C" in text
+    assert "posterior Cramér-Rao bound" in text
 
 
 @pytest.mark.parametrize("association", ["gnn", "jpda"])

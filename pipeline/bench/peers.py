@@ -48,12 +48,12 @@ from pipeline.bench import engine, evaluation, intervals, ospa, scene_evaluation
 from pipeline.bench.runs import Run, record
 from pipeline.bench.scene_evaluation import Scene, SceneResult
 from pipeline.filters import classical_filters
-from pipeline.params import STRATEGIES, Params
+from pipeline.params import STRATEGIES, Params, Radar
 from pipeline.peers import stone_soup
 from pipeline.progress import progress_logger
 from pipeline.recordings import opensky_states, plot_table
 from pipeline.simulation import real_traffic, routes, simulate
-from pipeline.surveillance import scorecard
+from pipeline.surveillance import pcrb, scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track
@@ -100,12 +100,19 @@ def peer_runs(params: Params) -> list[PeerRun]:
 @dataclass
 class Recording:
     """One recording a run tracks: its material, the scene (plots, scans, the aircraft in coverage at each scan,
-    their trajectories) and the truth the scorecard reads (each scan's true position, `scorecard.Truth`)."""
+    their trajectories), the truth the scorecard reads (each scan's true position, `scorecard.Truth`) with the
+    simulator's detection probability at each of its rows, and the radar."""
 
     material: str
     scene: Scene
     truth: scorecard.Truth
-    update_interval_s: float       # the radar's scan period
+    detection_probability: np.ndarray  # (T,) of each truth row
+    radar: Radar
+
+    @property
+    def update_interval_s(self) -> float:
+        """The radar's scan period: the scorecard's update interval."""
+        return 60.0 / self.radar.rotation_rpm
 
 
 def _recordings(params: Params, material: str, folder: Path, flown: dict[int, dict[str, np.ndarray]],
@@ -119,9 +126,9 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
     scan_of_plot = dict(zip(table.column("plot_id").to_numpy().tolist(), table.column("scan").to_numpy().tolist()))
     truth = io.read_parquet(folder / "truth.parquet", simulate.TRUTH_SCHEMA)
     column = {name: truth.column(name).to_numpy(zero_copy_only=False)
-              for name in ("scenario_id", "target_id", "scan", "time_unix_s", "in_coverage")}
+              for name in ("scenario_id", "target_id", "scan", "time_unix_s", "in_coverage", "detection_probability")}
     position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"], axis=1)
-    candidates = {}
+    candidates, detection = {}, {}
     for scenario_id, part in plots.scenarios():
         end = part.time[0] + window_s if window_s > 0 else np.inf
         part = part.take(np.flatnonzero(part.time < end))
@@ -136,8 +143,9 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
         candidates[scenario_id] = scene, scorecard.Truth(column["target_id"][mine].astype(np.int64),
                                                          column["time_unix_s"][mine], position[mine],
                                                          column["in_coverage"][mine])
-    interval = 60.0 / params.radar.rotation_rpm
-    return [Recording(material, *candidates[scenario_id], interval) for scenario_id in chosen(candidates)]
+        detection[scenario_id] = column["detection_probability"][mine]
+    return [Recording(material, *candidates[scenario_id], detection[scenario_id], params.radar)
+            for scenario_id in chosen(candidates)]
 
 
 def test_recordings(params: Params, simulated_dir: Path, routes_dir: Path) -> list[Recording]:
@@ -187,6 +195,7 @@ class PeerBench:
     recordings: list[Recording]
     runs: dict[str, Callable[[Recording], Tracked]]
     peers: list[PeerRun]
+    tuned: dict[str, classical_filters.FilterSettings]  # the tuned classical filters, by kind: the bound's models
 
 
 def _tracker(params: Params, models, peer: PeerRun, cv: classical_filters.FilterSettings
@@ -220,7 +229,25 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
     cv = classical_filters.load_settings(models_dir / "kalman_tuned.json")["cv"]
     recordings = test_recordings(params, simulated_dir, routes_dir) + real_traffic_recordings(params, root)
     return PeerBench(params, (params, simulated_dir, routes_dir, models_dir, root), recordings,
-                     {peer.name: _tracker(params, models, peer, cv) for peer in peers}, peers)
+                     {peer.name: _tracker(params, models, peer, cv) for peer in peers}, peers,
+                     classical_filters.load_settings(models_dir / "kalman_tuned.json"))
+
+
+def bound_rms(recordings: list[Recording], settings: classical_filters.FilterSettings) -> float:
+    """The limit beside the runs' position RMS: the RMS, over every in-coverage scan of every target of the
+    `recordings`, of the PCRB's horizontal position bound under a tuned filter's model (`settings`; `pcrb.
+    route_bounds`, its module says what the bound means), in metres. The runs' RMS is over their confirmed updates
+    alone, so a run that holds the hard scans less often may come nearer the bound than it is."""
+    squares = []
+    for recording in recordings:
+        truth = recording.truth
+        for target in np.unique(truth.target_id[truth.in_coverage]).tolist():
+            rows = np.flatnonzero((truth.target_id == target) & truth.in_coverage)
+            rows = rows[np.argsort(truth.time_s[rows], kind="stable")]
+            _, horizontal = pcrb.route_bounds(truth.time_s[rows], truth.position[rows],
+                                              recording.detection_probability[rows], recording.radar, settings)
+            squares.append(horizontal ** 2)
+    return float(np.sqrt(np.concatenate(squares).mean())) if squares else float("nan")
 
 
 @dataclass

@@ -99,6 +99,18 @@ def verdicts(report: dict, intervals: dict) -> list[str]:
     return lines
 
 
+def bound_line(material: dict) -> list[str]:
+    """The limit beside the position RMS column: the PCRB's horizontal RMS under each tuned model (none in a
+    report made before it)."""
+    bounds = material.get("pcrb_horizontal_rms_m")
+    if not bounds:
+        return []
+    told = ", ".join(f"{_shown(value, '{:.0f}')} m under the tuned {kind.upper()} model" for kind, value in bounds.items())
+    return [f"The limit beside the position RMS column: the posterior Cramér-Rao bound's horizontal RMS over every "
+            f"in-coverage scan, {told} (`pipeline/surveillance/pcrb.py`: the bound of trackers that assume that "
+            "model; the runs' RMS is over their confirmed updates alone)."]
+
+
 def materials_intro(report: dict) -> str:
     """What each material holds (`reports/peers.json`'s materials)."""
     parts = []
@@ -137,6 +149,7 @@ def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
         if material in report["runs"]:
             runs_intervals = intervals.get(material, {}).get("runs")
             blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals),
+                       *bound_line(report["materials"][material]),
                        f"{heading} {title}: the reference figures", references_table(report["references"][material])]
     return blocks
 
