@@ -5,6 +5,7 @@ verdicts between the best of Stone Soup and the best of ours (`reports/peers.jso
 from __future__ import annotations
 
 import math
+from collections import Counter
 from typing import Mapping
 
 TITLE = "The field's peers on the same plots: Stone Soup, ours and the oracle"
@@ -116,8 +117,10 @@ def materials_intro(report: dict) -> str:
     parts = []
     test = report["materials"].get("test")
     if test:
-        parts.append(f"**Test scenarios**: {len(test['recordings'])} scenarios of the {test['split']} split (the first of "
-                     f"each route strategy), each its first {test['window_s'] / 60:.0f} minutes "
+        kinds = Counter(test["strategies"].values())
+        each = "-".join(str(n) for n in sorted(set(kinds.values())))
+        parts.append(f"**Test scenarios**: {len(test['recordings'])} scenarios of the {test['split']} split (the first "
+                     f"{each} of each of {len(kinds)} route strategies), each its first {test['window_s'] / 60:.0f} minutes "
                      f"({test['plots']['target']:,} target and {test['plots']['false']:,} false plots), one aircraft "
                      "each; intervals resample the scenarios.")
     real = report["materials"].get("real_traffic")
