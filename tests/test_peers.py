@@ -3,6 +3,7 @@ GOSPA and the surveillance scorecard; and its report's verdicts (`pipeline.repor
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -90,3 +91,33 @@ def test_stone_soup_settings_name_the_gate_of_our_trackers(association: str) -> 
                                              FilterSettings("cv", (3.0,), 150.0, 10.0, 0.05, 0.9),
                                              params.tracker.association.kalman_gate_probability)
     assert settings.gate_probability == params.tracker.association.kalman_gate_probability
+
+
+def test_score_of_a_track_table_is_the_benchs_scorecard(tiny_pipeline, tmp_path) -> None:
+    """`track` then `score` on one test scenario give the scorecard the bench gives the same run on the same plots
+    (issue 32: the bench scores trackers as `score` scores any tracker's output)."""
+    from pipeline.settings import load_params
+    from pipeline.surveillance import scorecard
+    from tests.project import run_pipeline
+    params = load_params(tiny_pipeline / "params.yaml")
+    whole = dataclasses.replace(params.peers, window_s=0.0,
+                                real_traffic=dataclasses.replace(params.peers.real_traffic, states=""))
+    bench = peers.prepare(dataclasses.replace(params, peers=whole), tiny_pipeline / "data" / "simulated",
+                          tiny_pipeline / "data" / "routes", tiny_pipeline / "models", tiny_pipeline)
+    scenario = bench.recordings[0].scene.scenario_id
+    expected = scorecard.combined([peers.evaluate_unit(bench, "kalman_cv_4000", 0).card])
+    split = tiny_pipeline / "data" / "simulated" / "test"
+    tracked = run_pipeline("track", "--plots", str(split / "plots.parquet"), "--radar", str(split / "radar.parquet"),
+                           "--method", "kalman_cv", "--window", "4000", "--out", str(tmp_path / "tracks.parquet"),
+                           cwd=tiny_pipeline)
+    assert tracked.returncode == 0, tracked.stderr
+    scored = run_pipeline("score", "--tracks", str(tmp_path / "tracks.parquet"), "--truth", str(split / "truth.parquet"),
+                          "--scenario", str(scenario), "--out", str(tmp_path / "score.json"), cwd=tiny_pipeline)
+    assert scored.returncode == 0, scored.stderr
+    card = json.loads((tmp_path / "score.json").read_text())["scorecard"]
+    assert expected["confirmed_updates"] > 0 and card.keys() == expected.keys()
+    for name, value in expected.items():
+        if isinstance(value, float) and math.isnan(value):  # JSON has no NaN: written as null
+            assert card[name] is None, name
+        else:
+            assert card[name] == pytest.approx(value, rel=1e-9), name

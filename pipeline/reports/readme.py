@@ -16,6 +16,7 @@ naming the line, and the figure belongs in a generated section.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -267,12 +268,25 @@ def run_time_section(reports: Path) -> str:
     seconds = {stage["stage"]: stage["seconds"] for stage in speed["stages"]}
     evaluation = sum(seconds.get(name, 0.0) for name in EVALUATION_STAGES)
     commit = f", commit {speed['commit'][:10]}" if speed.get("commit") else ""
+    changed = changed_since_timed(speed, reports.parent)
+    since = [] if not changed else [
+        f"The code timed has changed since in {len(changed)} files ({', '.join(f'`{name}`' for name in changed)}): "
+        "the times are those of the code measured; `python benchmarks/bench_pipeline.py` measures today's."]
     return "\n".join([RUN_START,
                       f"With default params a fresh run took **{speed['total_seconds'] / 60:.0f} minutes** on "
                       f"{speed['machine']['cpus']} CPU cores ({speed['date']}{commit}; `python "
                       f"benchmarks/bench_pipeline.py`, every stage in [Speed](docs/speed.md)), "
                       f"{evaluation / 60:.0f} of them in the evaluation stages ({', '.join(EVALUATION_STAGES)}).",
-                      RUN_END])
+                      *since, RUN_END])
+
+
+def changed_since_timed(speed: dict, repository: Path) -> list[str]:
+    """The files of the stages' code (as the timed run's dvc.lock hashed them, md5) that differ from the files in
+    `repository` today, or are gone: where the measured times may no longer be today's."""
+    recorded = {path: digest for code in speed.get("code", {}).values() for path, digest in code.items()}
+    return sorted(path for path, digest in recorded.items()
+                  if not (repository / path).is_file()
+                  or hashlib.md5((repository / path).read_bytes()).hexdigest() != digest)
 
 
 def experiment_section(reports: Path) -> str:
