@@ -22,7 +22,8 @@ Every unit (run, recording) is tracked, timed and scored twice, on the confirmed
 track management rule, Stone Soup's from the update that confirms a track, `min_points`, on):
 
 - GOSPA with its parts, track switches, tracks per truth, fragmentation and purity, as the scenes are scored
-  (`scene_evaluation.scene_result`);
+  (`scene_evaluation.scene_result`), and the missed part split by cause (`missed_causes`: undetected, before the
+  first track, after a track);
 - the surveillance scorecard's parts (`pipeline.surveillance.scorecard`, params' `scorecard`, the update interval
   the radar's scan period) against the per-scan truth.
 
@@ -44,7 +45,7 @@ from typing import Callable
 import numpy as np
 
 from pipeline import io
-from pipeline.bench import engine, evaluation, intervals, ospa, scene_evaluation
+from pipeline.bench import engine, evaluation, gospa, intervals, scene_evaluation
 from pipeline.bench.runs import Run, record
 from pipeline.bench.scene_evaluation import Scene, SceneResult
 from pipeline.filters import classical_filters
@@ -68,7 +69,8 @@ STONE_SOUP_COST = 60.0         # a Stone Soup run's cost per plot against a clas
 REAL_TRAFFIC_FOLDER = "pipeline-real-traffic"
 PAIRED = ("GOSPA", "GOSPA_missed", "position_rms_m", "probability_of_update", "ratio_of_long_gaps",
           "tracks_per_aircraft")  # the verdicts'
-INTERVAL_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches",
+INTERVAL_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "GOSPA_missed_undetected",
+                    "GOSPA_missed_initiation", "GOSPA_missed_after_track", "track_switches",
                     "tracks_per_truth", "probability_of_update", "ratio_of_long_gaps", "position_error_mean_m",
                     "position_error_sigma_m", "position_rms_m", "along_track_rms_m", "across_track_rms_m",
                     "velocity_rms_straight_mps", "velocity_rms_manoeuvring_mps", "straight_within_0_25_nm",
@@ -250,12 +252,41 @@ def bound_rms(recordings: list[Recording], settings: classical_filters.FilterSet
     return float(np.sqrt(np.concatenate(squares).mean())) if squares else float("nan")
 
 
+MISSED_CAUSES = ("undetected", "initiation", "after_track")  # where a missed aircraft-scan is lost (`missed_causes`)
+
+
+def missed_causes(scene: Scene, scored: gospa.ScanGospa, missed_m: np.ndarray) -> np.ndarray:
+    """Each scan's GOSPA missed share `missed_m` (S,) m split by why its aircraft were missed (S, 3) m, in the
+    order of MISSED_CAUSES (issue 34): `undetected`, no plot of the aircraft in the scan; `initiation`, a plot but
+    no track of the aircraft yet (the scans before its first pair: detections the track management has not yet
+    confirmed); `after_track`, a plot, and the aircraft had a track before (the track lost, deleted, swapped away,
+    or the plot refused by its gate). Every missed aircraft costs a scan's GOSPA the same (c^p / 2), so a scan's
+    missed metres are split in proportion to the counts of its causes."""
+    index = {int(scan): row for row, scan in enumerate(scene.all_scans.tolist())}
+    paired = set(zip(scored.truth.tolist(), scored.scan.tolist()))
+    first = {}
+    for truth, scan in zip(scored.truth.tolist(), scored.scan.tolist()):
+        first[truth] = min(scan, first.get(truth, scan))
+    seen = scene.plots.target_id >= 0
+    detected = set(zip(scene.plots.target_id[seen].tolist(), scene.scans[seen].tolist()))
+    counts = np.zeros((len(scene.all_scans), len(MISSED_CAUSES)))
+    for truth, scan in zip(scene.truth_id.tolist(), scene.truth_scan.tolist()):
+        if (truth, scan) in paired:
+            continue
+        cause = 0 if (truth, scan) not in detected else 1 if scan < first.get(truth, np.inf) else 2
+        counts[index[scan], cause] += 1
+    total = counts.sum(axis=1, keepdims=True)
+    return np.divide(counts * missed_m[:, None], total, out=np.zeros_like(counts), where=total > 0)
+
+
 @dataclass
 class PeerResult:
-    """What tracking one recording with one run contributes: the scenes' metrics' part and the scorecard's."""
+    """What tracking one recording with one run contributes: the scenes' metrics' part, the scorecard's, and each
+    scan's missed metres by cause (S, 3) m (`missed_causes`)."""
 
     scene: SceneResult
     card: scorecard.Parts
+    missed: np.ndarray
 
 
 def evaluate_unit(bench: PeerBench, name: str, index: int) -> PeerResult:
@@ -268,13 +299,18 @@ def evaluate_unit(bench: PeerBench, name: str, index: int) -> PeerResult:
     settings = scorecard.Settings.from_params(recording.update_interval_s, bench.params.scorecard)
     card = scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
                                                   velocity, confirmed), recording.truth, settings)
-    return PeerResult(scene_evaluation.scene_result(bench.params, recording.scene, updates, confirmed, seconds), card)
+    scene = scene_evaluation.scene_result(bench.params, recording.scene, updates, confirmed, seconds, pictured=True)
+    _, scored = scene.pictured
+    scene.pictured = None  # the updates stay in the worker
+    return PeerResult(scene, card, missed_causes(recording.scene, scored, scene.scan_gospa[:, 1]))
 
 
 def run_metrics(results: list[PeerResult], plots: int) -> dict[str, float]:
     """A run's metrics over the recordings of `results`: the scenes' (`scene_evaluation.run_metrics`) and the
     scorecard's indicators (`scorecard.combined`), the recordings pooled; `plots` is theirs, for the speed."""
+    missed = np.concatenate([r.missed for r in results])
     return {**scene_evaluation.run_metrics([r.scene for r in results], plots),
+            **{f"GOSPA_missed_{cause}": float(value) for cause, value in zip(MISSED_CAUSES, missed.mean(axis=0))},
             **scorecard.combined([r.card for r in results])}
 
 

@@ -32,9 +32,10 @@ def _shown(value: float | None, form: str) -> str:
     return form.format(value)
 
 
-def _cell(metric: str, form: str, value: float | None, interval: list[float] | None) -> str:
+def _cell(metric: str, form: str, value: float | None, interval: list[float] | None,
+          with_interval: tuple[str, ...] = WITH_INTERVAL) -> str:
     text = _shown(value, form)
-    if interval is None or metric not in WITH_INTERVAL or not all(math.isfinite(v) for v in interval):
+    if interval is None or metric not in with_interval or not all(math.isfinite(v) for v in interval):
         return text
     return f"{text} [{_shown(interval[0], form)}, {_shown(interval[1], form)}]"
 
@@ -47,6 +48,32 @@ def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] |
         lines.append(f"| {name} | " + " | ".join(_cell(metric, form, runs[name].get(metric), own.get(metric))
                                                  for metric, _, form in COLUMNS) + " |")
     return "\n".join(lines)
+
+
+MISSED_COLUMNS = (("GOSPA_missed", "missed (m)"), ("GOSPA_missed_undetected", "no plot of it (m)"),
+                  ("GOSPA_missed_initiation", "before its first track (m)"),
+                  ("GOSPA_missed_after_track", "after a track (m)"))
+
+
+def missed_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> str | None:
+    """GOSPA's missed part split by cause (`pipeline.bench.peers.missed_causes`), best missed part first, with
+    the 95 % intervals where given; None for a report made before the split."""
+    if not all(metric in values for values in runs.values() for metric, _ in MISSED_COLUMNS):
+        return None
+    names = tuple(metric for metric, _ in MISSED_COLUMNS)
+    lines = ["| run | " + " | ".join(header for _, header in MISSED_COLUMNS) + " |", "|---" * (len(names) + 1) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n]["GOSPA_missed"]):
+        own = (run_intervals or {}).get(name, {})
+        lines.append(f"| {name} | " + " | ".join(_cell(metric, "{:.0f}", runs[name][metric], own.get(metric), names)
+                                                 for metric in names) + " |")
+    return "\n".join(lines)
+
+
+MISSED_INTRO = ("Where the missed metres are lost: each aircraft-scan a run misses (no confirmed track within the "
+                "cutoff) split by why, its share of the scan's missed part in metres: no plot of the aircraft in "
+                "the scan (the radar's misses: no tracker can do better without coasting), a plot but no track of the "
+                "aircraft yet (the scans its track management takes to confirm), a plot and the aircraft had a track "
+                "before (a track lost, deleted or swapped away, or the plot refused by the gate).")
 
 
 FIGURES = {"single-radar": "ECAC single-radar", "multi-radar": "ECAC multi-radar", "ED-129C": "ED-129C"}
@@ -151,8 +178,10 @@ def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
     for material, title in (("test", "Test scenarios"), ("real_traffic", "Real traffic")):
         if material in report["runs"]:
             runs_intervals = intervals.get(material, {}).get("runs")
+            missed = missed_table(report["runs"][material], runs_intervals)
             blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals),
                        *bound_line(report["materials"][material]),
+                       *([MISSED_INTRO, missed] if missed else []),
                        f"{heading} {title}: the reference figures", references_table(report["references"][material])]
     return blocks
 
