@@ -34,6 +34,8 @@ def test_two_aircraft_in_clutter_are_two_tracks_of_their_own_plots(association: 
     assert sorted(sum(aircraft, [])) == list(range(2, 20)) + list(range(22, 40))  # each from its third plot on
     assert not confirmed[updates["track_id"] == updates["track_id"][np.flatnonzero(confirmed)[0]]][:2].any()
     assert updates["position_covariance"].shape == (len(confirmed), 3, 3)
+    firsts = [updates["time_unix_s"][updates["track_id"] == k][0] for k in np.unique(updates["track_id"])]
+    assert firsts == sorted(firsts)  # tracks numbered by their first plot, not Stone Soup's random ids
     late = np.isin(updates["plot_id"], np.arange(10, 20))  # the first aircraft's, settled: 201 m/s
     assert np.linalg.norm(updates["velocity"][late], axis=1) == pytest.approx(np.hypot(180.0, 90.0), abs=15.0)
 

@@ -156,10 +156,11 @@ def track_with_stone_soup(plots: Plots, settings: StoneSoupSettings) -> dict[str
         started = initiator.initiate(detections - associated, time)
         tracks |= started
         seen.update((track.id, track) for track in started)
-    rows = []
-    for number, track_id in enumerate(sorted(seen)):
-        updates = [(row, state) for state in seen[track_id].states if hasattr(state, "hypothesis")
-                   for row in [_measurement_row(state.hypothesis)] if row is not None]
+    updated = {track_id: [(row, state) for state in track.states if hasattr(state, "hypothesis")
+                          for row in [_measurement_row(state.hypothesis)] if row is not None]
+               for track_id, track in seen.items()}
+    rows = []  # tracks numbered in the order of their first plot (Stone Soup's ids are random UUIDs)
+    for number, updates in enumerate(sorted((u for u in updated.values() if u), key=lambda u: u[0][0])):
         for k, (row, state) in enumerate(updates):
             rows.append((number, row, k >= settings.min_points - 1,
                          np.asarray(state.state_vector, dtype=float).reshape(6), np.asarray(state.covar, dtype=float)))

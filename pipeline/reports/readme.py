@@ -222,10 +222,13 @@ def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -
         "interval.", ""]
     peers = comparison.get("peers")
     against_peers = peers_tables.verdicts(peers["report"], peers["intervals"]) if peers else []
+    test = peers["report"]["materials"].get("test") if peers else None
+    on_what = (f"{len(test['recordings'])} test scenarios of {test['window_s'] / 60:.0f} minutes; the real-traffic scene, "
+               "one recording without an interval, in `reports/peers.md`" if test else "`reports/peers.md`")
     return "\n".join([HEADLINE_START, "", *caveat, *comparison_tables.verdict(trackers, comparison["holdout"],
                                                                               intervals),
                       *(["", "Against Stone Soup, the field's open tracking framework, on the same plots "
-                             "(`reports/peers.md`):", *against_peers] if against_peers else []),
+                             f"({on_what}):", *against_peers] if against_peers else []),
                       "", f"![{COMPARISON_PICTURE}]({_link(reports / 'comparison.png', folder)})", "",
                       HEADLINE_END])
 
