@@ -1,5 +1,5 @@
-"""The fusion stage's library (`radar_fusion`): the multi-target scenes seen by two radars, tracked per radar,
-associated and fused; and the params of its radars."""
+"""The fusion stage's library (`radar_fusion`, run as units of the bench's engine by `fusion_bench`): the
+multi-target scenes seen by two radars, tracked per radar, associated and fused; and the params of its radars."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from pipeline.bench import radar_fusion
+from pipeline.bench import fusion_bench, radar_fusion
 from pipeline.geometry import geodesy
 from pipeline.params import ParamError
 from tests import tracker_fixtures as tf
@@ -21,7 +21,7 @@ SMALL = {"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1, "
 def report(tmp_path_factory):
     params = tf.make_params(SMALL)
     models = tf.write_tuned_filters(tmp_path_factory.mktemp("models"), params)
-    return radar_fusion.fusion_report(params, models, None)
+    return fusion_bench.fusion_reports(params, models, workers=1)
 
 
 def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_the_better_radar(report):
@@ -41,6 +41,17 @@ def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_
     assert all(value >= 1.0 for value in report["tracks_per_truth"].values())
     for name, shares in report["gospa_shares_m"].items():
         assert sum(shares.values()) == pytest.approx(report["gospa_m"][name])
+
+
+def test_the_fusion_report_is_the_same_on_two_workers_as_on_one(tmp_path):
+    """Two scenes, each a unit: merged in scene order, the report (the bias sweep's counts included) does not
+    depend on which worker scored which scene, nor in which order they finished."""
+    params = tf.make_params({**SMALL, "scenes.duration_s": 120.0, "fusion.scenes": 2,
+                             "fusion.sweep_scenes": 2, "fusion.sweep_bias_m": [0.0, 300.0]})
+    models = tf.write_tuned_filters(tmp_path, params)
+    alone = fusion_bench.fusion_reports(params, models, workers=1)
+    assert alone["scenes"] == 2 and alone["bias_sweep"]["scenes"] == 2
+    assert alone == fusion_bench.fusion_reports(params, models, workers=2)
 
 
 def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():

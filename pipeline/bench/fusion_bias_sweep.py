@@ -2,7 +2,8 @@
 seed's synthetic setting that `association_report` sweeps.
 
 Per scene (the first `fusion.sweep_scenes` of the fusion stage's): radar 1 as `fusion.radars[0]` and radar 2
-as `fusion.radars[1]` with its registration biases set to zero are simulated and tracked (`radar_fusion.radar_tracks`),
+as `fusion.radars[1]` with its registration biases set to zero are simulated and tracked (`radar_fusion.radar_tracks`;
+radar 1's tracks are the fusion unit's own, `fusion_bench`),
 and both track tables taken at common times (`common_time_states`). Each bias length b of `fusion.sweep_bias_m`
 is then a registration error of radar 2's site: every radar 2 track state is moved by b in a direction drawn
 uniformly per (scene, bias) from radar 2's seed (the seed's bias: a translation of uniform direction, seed 002,
@@ -24,6 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pyarrow as pa  # noqa: E402
 
 from pipeline.association import association_net, table_association
 from pipeline.association.common_time_states import Snapshot, common_frame, common_snapshots  # noqa: E402
@@ -31,7 +33,6 @@ from pipeline.bench import radar_fusion
 from pipeline.bench.association_report import count_pairs  # noqa: E402
 from pipeline.figure_png import png  # noqa: E402
 from pipeline.params import Params  # noqa: E402
-from pipeline.simulation import scenes  # noqa: E402
 
 COUNTS = ("true", "correct", "false", "missed")
 MEASURES = (("accuracy", "correct pairs / true pairs"), ("false_pairs", "false pairs / true pairs"),
@@ -54,16 +55,15 @@ def bias_offset(bias_m: float, seed: int, scene_id: int, index: int) -> np.ndarr
     return bias_m * np.array([np.sin(angle), np.cos(angle)])
 
 
-def scene_counts(params: Params, scene_id: int, models_dir: Path, model: association_net.AssociationNet | None
-                 ) -> np.ndarray:
-    """(biases, methods, 4) counts [true, correct, false, missed] of one scene (module docstring)."""
+def scene_counts(params: Params, scene_id: int, routes: pa.Table, first: radar_fusion.RadarTracks, models_dir: Path,
+                 model: association_net.AssociationNet | None) -> np.ndarray:
+    """(biases, methods, 4) counts [true, correct, false, missed] of one scene of `routes` (module docstring),
+    radar 1's tracks `first` those the fusion stage made of it (`radar_fusion.radar_tracks`: the same radar)."""
     fusion = params.fusion
-    routes = scenes.scene_routes(params, scene_id, scenes.plan_scene(params, scene_id))
     unbiased = dataclasses.replace(fusion.radars[1], bias_range_m=0.0, bias_azimuth_deg=0.0, bias_east_m=0.0,
                                    bias_north_m=0.0)
-    (table1, targets1, _), (table2, targets2, _) = (radar_fusion.radar_tracks(params, radar, scene_id, routes,
-                                                                              models_dir)
-                                                    for radar in (fusion.radars[0], unbiased))
+    table1, targets1, _ = first
+    table2, targets2, _ = radar_fusion.radar_tracks(params, unbiased, scene_id, routes, models_dir)
     snapshots = common_snapshots(table1, table2, common_frame(table1, table2), params.associate)
     oracle = [radar_fusion.oracle_pairs(snapshot, (targets1, targets2)) for snapshot in snapshots]
     counts = np.zeros((len(fusion.sweep_bias_m), len(fusion.methods), len(COUNTS)), dtype=np.int64)
@@ -78,11 +78,12 @@ def scene_counts(params: Params, scene_id: int, models_dir: Path, model: associa
     return counts
 
 
-def sweep_report(params: Params, models_dir: Path, model: association_net.AssociationNet | None) -> dict:
+def sweep_report(params: Params, counts: list[np.ndarray]) -> dict:
     """{"scenes", "by_bias_m": {bias: {"methods": {method: accuracy, false_pairs, missed_pairs (per true pair) and
-    the counts}}}}, the shape `association_report.bias_figure` draws."""
+    the counts}}}}, the shape `association_report.bias_figure` draws, from the first `fusion.sweep_scenes` scenes'
+    `scene_counts`."""
     fusion = params.fusion
-    totals = sum(scene_counts(params, scene_id, models_dir, model) for scene_id in range(fusion.sweep_scenes))
+    totals = sum(counts)
     by_bias = {}
     for b, bias_m in enumerate(fusion.sweep_bias_m):
         methods = {}

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -144,10 +145,19 @@ def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
     return np.array([len(got & true), len(got - true), len(true - got)])
 
 
+class RadarTracks(NamedTuple):
+    """One radar's view of a scene: its track table, each confirmed track's majority target, and its
+    detections (target ids (D,), plot times (D,) s)."""
+
+    table: TrackTable
+    targets: dict[int, int]
+    detections: tuple[np.ndarray, np.ndarray]
+
+
 def radar_tracks(params: Params, fusion_radar: FusionRadar, scene_id: int, routes: pa.Table, models_dir: Path
-                 ) -> tuple[TrackTable, dict[int, int], tuple[np.ndarray, np.ndarray]]:
-    """One radar's track table of the scene, each track's majority target, and its detections (target ids,
-    plot times)."""
+                 ) -> RadarTracks:
+    """One radar's track table of the scene of `routes`, tracked with `fusion.tracker`, each track's majority
+    target, and its detections."""
     plots = radar_plots(params, fusion_radar, scene_id, routes)
     believed = believed_radar(fusion_radar)
     recording = plot_table(plots, {fusion_radar.radar.radar_id: believed}, f"scene {scene_id}")
@@ -156,25 +166,17 @@ def radar_tracks(params: Params, fusion_radar: FusionRadar, scene_id: int, route
     table = track_table(tracks, {radar_id: geodesy.radar_site_ecef(believed)},
                         Path(f"scene {scene_id} radar {radar_id} tracks"), params.associate.max_speed_mps,
                         {radar_id: believed.scan_period_s})
-    return table, majority_targets(tracks, plots), (plots.column("target_id").to_numpy(),
-                                                    plots.column("time_unix_s").to_numpy())
+    return RadarTracks(table, majority_targets(tracks, plots), (plots.column("target_id").to_numpy(),
+                                                                plots.column("time_unix_s").to_numpy()))
 
 
-def local_tracks(params: Params, scene_id: int, routes: pa.Table, models_dir: Path
-                 ) -> tuple[list[TrackTable], list[dict[int, int]], tuple[np.ndarray, np.ndarray]]:
-    """Each radar's track table of the scene, each track's majority target, and all radars' detections
-    (target ids, plot times)."""
-    tables, targets, detections = zip(*(radar_tracks(params, fusion_radar, scene_id, routes, models_dir)
-                                        for fusion_radar in params.fusion.radars))
-    return list(tables), list(targets), tuple(np.concatenate(parts) for parts in zip(*detections))
-
-
-def scene_scores(params: Params, scene_id: int, models_dir: Path,
+def scene_scores(params: Params, scene_id: int, routes: pa.Table, tracked: list[RadarTracks],
                  model: association_net.AssociationNet | None) -> tuple[dict[str, PictureScore], dict[str, np.ndarray]]:
     """One scene's score of each picture ("radar_<id>", "fused_<method>", "fused_oracle") and counts: "pairs_<method>"
-    ([correct, false, missed]), "oracle_pairs" and "times" (the common times)."""
-    routes = scenes.scene_routes(params, scene_id, scenes.plan_scene(params, scene_id))
-    tables, targets, detected = local_tracks(params, scene_id, routes, models_dir)
+    ([correct, false, missed]), "oracle_pairs" and "times" (the common times), from each radar's tracks of the
+    scene's `routes` (`radar_tracks`, in `fusion.radars` order)."""
+    tables, targets = [radar.table for radar in tracked], [radar.targets for radar in tracked]
+    detected = tuple(np.concatenate(parts) for parts in zip(*(radar.detections for radar in tracked)))
     frame = common_frame(*tables)
     snapshots = common_snapshots(*tables, frame, params.associate)
     decisions = {method: table_association.decide(snapshots, method, params.association, model,
@@ -203,17 +205,16 @@ def scene_scores(params: Params, scene_id: int, models_dir: Path,
     return pictures, counts
 
 
-def fusion_report(params: Params, models_dir: Path, model: association_net.AssociationNet | None) -> dict:
-    """reports/fusion.json: per picture the mean GOSPA (m) per common time and its localisation, missed and false
-    shares (m), the track switches (summed over scenes) and tracks per truth (mean over the truths of every
-    scene); each fused picture's GOSPA relative to the better radar's; per method association accuracy, false
-    and missed pairs against the oracle's."""
+def fusion_report(params: Params, scored: list[tuple[dict[str, PictureScore], dict[str, np.ndarray]]]) -> dict:
+    """reports/fusion.json from every scene's `scene_scores`, in scene order: per picture the mean GOSPA (m) per
+    common time and its localisation, missed and false shares (m), the track switches (summed over scenes) and
+    tracks per truth (mean over the truths of every scene); each fused picture's GOSPA relative to the better
+    radar's; per method association accuracy, false and missed pairs against the oracle's."""
     gospa_sums: dict[str, float] = {}
     shares: dict[str, np.ndarray] = {}
     continuity: dict[str, np.ndarray] = {}
     totals: dict[str, np.ndarray] = {}
-    for scene_id in range(params.fusion.scenes):
-        pictures, counts = scene_scores(params, scene_id, models_dir, model)
+    for pictures, counts in scored:
         for name, score in pictures.items():
             gospa_sums[name] = gospa_sums.get(name, 0.0) + score.gospa_sum
             shares[name] = shares.get(name, 0.0) + score.shares_sum

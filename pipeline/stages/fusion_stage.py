@@ -1,6 +1,7 @@
 """Stage `fusion`: two radars' local tracks of the multi-target scenes associated by every method and fused; the
 fused picture's GOSPA against each radar alone and the oracle association (`radar_fusion`); and every method's
-association accuracy against radar 2's registration bias in those scenes (`fusion_bias_sweep`).
+association accuracy against radar 2's registration bias in those scenes (`fusion_bias_sweep`). A scene is a
+unit of the bench's engine (`fusion_bench`: `compute.workers` processes or a Dask scheduler).
 
 Writes `reports/fusion.json` (DVC metrics; the sweep under `bias_sweep`) and `reports/fusion_bias.png` (accuracy
 and false pairs against the bias). Reads `models/kalman_tuned.json` (the local tracker) and, when `fusion.methods`
@@ -13,18 +14,14 @@ import logging
 from pathlib import Path
 
 from pipeline import io
-from pipeline.association import association_net, registry
-from pipeline.bench import fusion_bias_sweep, radar_fusion
+from pipeline.bench import fusion_bench, fusion_bias_sweep
 from pipeline.params import Params
 
 log = logging.getLogger("pipeline")
 
 
 def run_fusion(params: Params, models_dir: Path, reports_dir: Path) -> None:
-    model = (association_net.load(models_dir / "association_net.pt") if registry.needs_network(params.fusion.methods)
-             else None)
-    report = radar_fusion.fusion_report(params, models_dir, model)
-    report["bias_sweep"] = fusion_bias_sweep.sweep_report(params, models_dir, model)
+    report = fusion_bench.fusion_reports(params, models_dir, params.workers)
     io.write_json(report, reports_dir / "fusion.json")
     io.write_bytes(fusion_bias_sweep.sweep_figure(report["bias_sweep"]), reports_dir / "fusion_bias.png")
     log.info("fusion: %d scenes, %d common times; GOSPA %s -> %s", report["scenes"], report["common_times"],

@@ -1,0 +1,85 @@
+"""The fusion stage's work as units of the bench's engine (issue 30): a unit is one scene seen by both radars.
+
+A unit (`scene_unit`) simulates the scene for each radar of `fusion.radars`, tracks each radar's plots alone
+(`radar_fusion.radar_tracks`: the track tables handed on in memory, no Parquet round trip), scores every
+picture and association method on it (`radar_fusion.scene_scores`) and, for the first `fusion.sweep_scenes`
+scenes, counts every method's pairs against radar 2's registration bias (`fusion_bias_sweep.scene_counts`),
+reusing radar 1's tracks, which the sweep's radar 1 (`fusion.radars[0]` as it is) would make again. The
+units run on `engine.completed_units` (`compute.workers` processes, or a Dask scheduler named by
+`DASK_SCHEDULER_ADDRESS`), each worker loading the association network once per call (`prepare`), and are
+merged in scene order, so `reports/fusion.json` is the same bytes with any number of workers.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from pipeline.association import association_net, registry
+from pipeline.bench import engine, fusion_bias_sweep, radar_fusion
+from pipeline.params import Params
+from pipeline.progress import progress_logger
+from pipeline.simulation import scenes
+
+log = logging.getLogger("pipeline")
+
+
+class FusionBench(NamedTuple):
+    """What a worker needs for the fusion units: the params, the models folder (the local tracker's tuned
+    filters) and the association network (None when `fusion.methods` does not list network)."""
+
+    params: Params
+    models_dir: Path
+    model: association_net.AssociationNet | None
+
+
+class SceneResult(NamedTuple):
+    """One scene's pictures' scores and pair counts (`radar_fusion.scene_scores`), and its bias sweep's
+    counts (biases, methods, 4) (`fusion_bias_sweep.scene_counts`), None past `fusion.sweep_scenes`."""
+
+    pictures: dict[str, radar_fusion.PictureScore]
+    counts: dict[str, np.ndarray]
+    sweep: np.ndarray | None
+
+
+def prepare(params: Params, models_dir: Path) -> FusionBench:
+    """The units' state: the association network loaded from `models_dir/association_net.pt` when a method
+    needs it (`registry.needs_network`)."""
+    model = (association_net.load(models_dir / "association_net.pt") if registry.needs_network(params.fusion.methods)
+             else None)
+    return FusionBench(params, models_dir, model)
+
+
+def scene_unit(bench: FusionBench, scene_id: int) -> SceneResult:
+    """Scene `scene_id` seen by both radars, scored (module docstring)."""
+    params = bench.params
+    routes = scenes.scene_routes(params, scene_id, scenes.plan_scene(params, scene_id))
+    tracked = [radar_fusion.radar_tracks(params, radar, scene_id, routes, bench.models_dir)
+               for radar in params.fusion.radars]
+    pictures, counts = radar_fusion.scene_scores(params, scene_id, routes, tracked, bench.model)
+    sweep = (fusion_bias_sweep.scene_counts(params, scene_id, routes, tracked[0], bench.models_dir, bench.model)
+             if scene_id < params.fusion.sweep_scenes else None)
+    return SceneResult(pictures, counts, sweep)
+
+
+def fusion_reports(params: Params, models_dir: Path, workers: int) -> dict:
+    """reports/fusion.json (`radar_fusion.fusion_report`, its bias sweep under "bias_sweep",
+    `fusion_bias_sweep.sweep_report`) from the first `fusion.scenes` scenes on `workers` workers. Raises
+    `engine.SchedulerUnreachable` and what a unit raised."""
+    units = [(scene_id,) for scene_id in range(params.fusion.scenes)]
+    workers = max(1, min(workers, len(units)))
+    report = progress_logger(f"fusion scenes ({engine.where(workers)})")
+    state = prepare(params, models_dir) if workers == 1 and engine.scheduler_address() is None else None
+    results: dict[int, SceneResult] = {}
+    for done, ((scene_id,), result) in enumerate(engine.completed_units(
+            units, workers, scene_unit, state, prepare, (params, models_dir)), start=1):
+        results[scene_id] = result
+        report(done, len(units))
+    ordered = [results[scene_id] for scene_id in range(params.fusion.scenes)]
+    fused = radar_fusion.fusion_report(params, [(result.pictures, result.counts) for result in ordered])
+    fused["bias_sweep"] = fusion_bias_sweep.sweep_report(params, [result.sweep for result in ordered
+                                                                  if result.sweep is not None])
+    return fused
