@@ -29,7 +29,7 @@ def test_on_one_small_scene_the_bias_robust_method_holds_at_400_m_and_the_statis
     params = tf.make_params({"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1,
                              "fusion.sweep_scenes": 1, "fusion.sweep_bias_m": [0.0, 400.0],
                              "fusion.methods": ["statistical", "bias_robust"]})
-    report = fusion_bench.fusion_reports(params, tf.write_tuned_filters(tmp_path, params), workers=1)["bias_sweep"]
+    report = fusion_bench.fusion_reports(params, tf.write_tuned_filters(tmp_path, params), workers=1)[0]["bias_sweep"]
     unbiased, biased = report["by_bias_m"]["0"]["methods"], report["by_bias_m"]["400"]["methods"]
     assert unbiased["statistical"]["accuracy"] > 0.9 and unbiased["bias_robust"]["accuracy"] > 0.9
     assert biased["bias_robust"]["accuracy"] > 0.9

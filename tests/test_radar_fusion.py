@@ -21,7 +21,7 @@ SMALL = {"scenes.aircraft": 8, "scenes.duration_s": 200.0, "fusion.scenes": 1, "
 def report(tmp_path_factory):
     params = tf.make_params(SMALL)
     models = tf.write_tuned_filters(tmp_path_factory.mktemp("models"), params)
-    return fusion_bench.fusion_reports(params, models, workers=1)
+    return fusion_bench.fusion_reports(params, models, workers=1)[0]
 
 
 def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_the_better_radar(report):
@@ -44,14 +44,22 @@ def test_two_radars_tracks_are_paired_as_the_oracle_pairs_them_and_fusion_beats_
 
 
 def test_the_fusion_report_is_the_same_on_two_workers_as_on_one(tmp_path):
-    """Two scenes, each a unit: merged in scene order, the report (the bias sweep's counts included) does not
-    depend on which worker scored which scene, nor in which order they finished."""
+    """Two scenes, each a unit: merged in scene order, the report (the bias sweep's counts included) and its
+    intervals over the scenes do not depend on which worker scored which scene, nor in which order they
+    finished; each picture's interval holds its GOSPA, and a paired difference is the negative of its reverse."""
     params = tf.make_params({**SMALL, "scenes.duration_s": 120.0, "fusion.scenes": 2,
                              "fusion.sweep_scenes": 2, "fusion.sweep_bias_m": [0.0, 300.0]})
     models = tf.write_tuned_filters(tmp_path, params)
-    alone = fusion_bench.fusion_reports(params, models, workers=1)
+    alone, spread = fusion_bench.fusion_reports(params, models, workers=1)
     assert alone["scenes"] == 2 and alone["bias_sweep"]["scenes"] == 2
-    assert alone == fusion_bench.fusion_reports(params, models, workers=2)
+    assert (alone, spread) == fusion_bench.fusion_reports(params, models, workers=2)
+    assert spread["pictures"]["units"] == 2 and set(spread["pictures"]["runs"]) == set(alone["gospa_m"])
+    for name, value in alone["gospa_m"].items():
+        low, high = spread["pictures"]["runs"][name]["GOSPA"]
+        assert low <= value <= high
+    low, high = spread["pictures"]["paired"]["GOSPA"]["radar_1"]["radar_2"]
+    assert spread["pictures"]["paired"]["GOSPA"]["radar_2"]["radar_1"] == pytest.approx([-high, -low])
+    assert set(spread["association"]["runs"]) == {"statistical", "bias_robust"}
 
 
 def test_a_biased_radar_is_believed_where_its_position_bias_puts_it():

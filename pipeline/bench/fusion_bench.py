@@ -8,6 +8,11 @@ reusing radar 1's tracks, which the sweep's radar 1 (`fusion.radars[0]` as it is
 units run on `engine.completed_units` (`compute.workers` processes, or a Dask scheduler named by
 `DASK_SCHEDULER_ADDRESS`), each worker loading the association network once per call (`prepare`), and are
 merged in scene order, so `reports/fusion.json` is the same bytes with any number of workers.
+
+The scenes are also the units of the intervals (`fusion_intervals`): every picture's GOSPA and every method's
+association accuracy recomputed on the bootstrap's resamples of the scenes (`intervals.run_intervals`, paired:
+every picture and method is scored on the same scenes), so a fused picture's lead over another, or over the
+better radar alone, is told from the noise of which scenes were drawn.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pipeline.association import association_net, registry
-from pipeline.bench import engine, fusion_bias_sweep, radar_fusion
+from pipeline.bench import engine, fusion_bias_sweep, intervals, radar_fusion
 from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.simulation import scenes
@@ -65,10 +70,36 @@ def scene_unit(bench: FusionBench, scene_id: int) -> SceneResult:
     return SceneResult(pictures, counts, sweep)
 
 
-def fusion_reports(params: Params, models_dir: Path, workers: int) -> dict:
+def _mean_gospa(units: list[tuple[float, int]]) -> dict[str, float]:
+    """A picture's GOSPA (m) per common time over scenes' (GOSPA summed over common times, common times), as
+    `radar_fusion.fusion_report` means it."""
+    return {"GOSPA": sum(total for total, _ in units) / max(sum(times for _, times in units), 1)}
+
+
+def _accuracy(units: list[tuple[int, int]]) -> dict[str, float]:
+    """A method's association accuracy over scenes' (correct pairs, oracle pairs)."""
+    return {"accuracy": sum(correct for correct, _ in units) / max(sum(oracle for _, oracle in units), 1)}
+
+
+def fusion_intervals(params: Params, scored: list[SceneResult]) -> dict:
+    """reports/fusion_intervals.json: the `evaluate.confidence` intervals (`evaluate.bootstrap_replicates`
+    resamples of the scenes, seed `evaluate.bootstrap_seed`) of every picture's GOSPA and every method's
+    association accuracy, and of their paired differences (`intervals.run_intervals`), from every scene's
+    result in scene order: {"pictures": ..., "association": ...}."""
+    chosen = params.evaluate
+    pictures = {name: [(result.pictures[name].gospa_sum, int(result.counts["times"])) for result in scored]
+                for name in scored[0].pictures}
+    methods = {method: [(int(result.counts[f"pairs_{method}"][0]), int(result.counts["oracle_pairs"]))
+                        for result in scored] for method in params.fusion.methods}
+    settings = (chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed)
+    return {"pictures": intervals.run_intervals(pictures, _mean_gospa, ["GOSPA"], ["GOSPA"], *settings),
+            "association": intervals.run_intervals(methods, _accuracy, ["accuracy"], ["accuracy"], *settings)}
+
+
+def fusion_reports(params: Params, models_dir: Path, workers: int) -> tuple[dict, dict]:
     """reports/fusion.json (`radar_fusion.fusion_report`, its bias sweep under "bias_sweep",
-    `fusion_bias_sweep.sweep_report`) from the first `fusion.scenes` scenes on `workers` workers. Raises
-    `engine.SchedulerUnreachable` and what a unit raised."""
+    `fusion_bias_sweep.sweep_report`) and reports/fusion_intervals.json (`fusion_intervals`) from the first
+    `fusion.scenes` scenes on `workers` workers. Raises `engine.SchedulerUnreachable` and what a unit raised."""
     units = [(scene_id,) for scene_id in range(params.fusion.scenes)]
     workers = max(1, min(workers, len(units)))
     report = progress_logger(f"fusion scenes ({engine.where(workers)})")
@@ -82,4 +113,4 @@ def fusion_reports(params: Params, models_dir: Path, workers: int) -> dict:
     fused = radar_fusion.fusion_report(params, [(result.pictures, result.counts) for result in ordered])
     fused["bias_sweep"] = fusion_bias_sweep.sweep_report(params, [result.sweep for result in ordered
                                                                   if result.sweep is not None])
-    return fused
+    return fused, fusion_intervals(params, ordered)

@@ -1,9 +1,13 @@
 """Markdown tables of the fusion stage's report (`reports/fusion.json`, `radar_fusion` and `fusion_bias_sweep`) for
 the comparison report and docs/results.md: the fused picture against each radar alone and the oracle association, each
-method's association in the fusion scenes, and association against radar 2's bias.
+method's association in the fusion scenes, and association against radar 2's bias; with the intervals over the scenes
+(`reports/fusion_intervals.json`, `fusion_bench.fusion_intervals`), the verdicts between the best fused picture, the
+next method's and the better radar alone.
 """
 
 from __future__ import annotations
+
+import math
 
 TITLE = "Two radars: track-to-track association and the fused picture"
 PICTURE_LABELS = {"radar_1": "radar 1 alone", "radar_2": "radar 2 alone", "fused_oracle": "fused, oracle pairs"}
@@ -26,29 +30,74 @@ def intro(fusion: dict) -> str:
             "pairs the tracks whose majority aircraft is the same (the limit of association).")
 
 
-def picture_table(fusion: dict) -> str:
-    """Every picture's GOSPA and its parts, its ratio to the better radar's, switches and tracks per aircraft,
-    best GOSPA first."""
+def _interval(spread: dict | None, part: str, name: str, metric: str) -> list[float]:
+    """A run's interval of `metric` in `part` ("pictures", "association") of the intervals, [NaN, NaN] without."""
+    return (spread or {}).get(part, {}).get("runs", {}).get(name, {}).get(metric, [math.nan, math.nan])
+
+
+def _shown(interval: list[float], form: str) -> str:
+    low, high = interval
+    return f"[{form.format(low)}, {form.format(high)}]" if math.isfinite(low) and math.isfinite(high) else "n/a"
+
+
+def picture_table(fusion: dict, spread: dict | None = None) -> str:
+    """Every picture's GOSPA with its interval over the scenes, its parts, its ratio to the better radar's,
+    switches and tracks per aircraft, best GOSPA first."""
     gospa, shares = fusion["gospa_m"], fusion["gospa_shares_m"]
     better = min(value for name, value in gospa.items() if name.startswith("radar_"))
-    header = ["picture", "GOSPA (m)", "vs better radar", "localisation (m)", "missed (m)", "false (m)",
-              "track switches", "tracks per aircraft"]
+    header = ["picture", "GOSPA (m)", "95 % interval", "vs better radar", "localisation (m)", "missed (m)",
+              "false (m)", "track switches", "tracks per aircraft"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for name in sorted(gospa, key=gospa.get):
-        lines.append(f"| {_label(name)} | {gospa[name]:.0f} | {100 * (gospa[name] / better - 1):+.1f} % | "
+        lines.append(f"| {_label(name)} | {gospa[name]:.0f} | {_shown(_interval(spread, 'pictures', name, 'GOSPA'), '{:.0f}')} | "
+                     f"{100 * (gospa[name] / better - 1):+.1f} % | "
                      f"{shares[name]['localisation']:.0f} | {shares[name]['missed']:.0f} | "
                      f"{shares[name]['false']:.0f} | {fusion['track_switches'][name]} | "
                      f"{fusion['tracks_per_truth'][name]:.2f} |")
     return "\n".join(lines)
 
 
-def association_table(fusion: dict) -> str:
-    """Each method's pairs against the oracle's over all common times of the fusion scenes."""
-    lines = ["| method | accuracy | false pairs | missed pairs |", "|---|---|---|---|"]
+def association_table(fusion: dict, spread: dict | None = None) -> str:
+    """Each method's pairs against the oracle's over all common times of the fusion scenes, its accuracy's
+    interval over the scenes."""
+    lines = ["| method | accuracy | 95 % interval | false pairs | missed pairs |", "|---|---|---|---|---|"]
     for method, counts in fusion["association"].items():
-        lines.append(f"| {method} | {100 * counts['accuracy']:.1f} % | {counts['false_pairs']:,} | "
-                     f"{counts['missed_pairs']:,} |")
+        interval = [100 * value for value in _interval(spread, "association", method, "accuracy")]
+        lines.append(f"| {method} | {100 * counts['accuracy']:.1f} % | {_shown(interval, '{:.1f}')} | "
+                     f"{counts['false_pairs']:,} | {counts['missed_pairs']:,} |")
     return "\n".join(lines)
+
+
+def _outcome(interval: list[float], first: str, second: str, difference: float) -> str:
+    """Who has the lower GOSPA, or a tie where the paired interval of first minus second holds 0."""
+    low, high = interval
+    if not (math.isfinite(low) and math.isfinite(high)) or low <= 0.0 <= high:
+        return "a tie within the noise"
+    return f"{first if difference < 0 else second} wins"
+
+
+def verdicts(fusion: dict, spread: dict | None) -> list[str]:
+    """The best fused picture (by GOSPA, the oracle's aside) against the next method's and against the better
+    radar alone, with the paired 95 % interval of the difference over the scenes; none without intervals."""
+    paired = (spread or {}).get("pictures", {}).get("paired", {}).get("GOSPA")
+    gospa = fusion["gospa_m"]
+    fused = sorted((name for name in gospa if name.startswith("fused_") and name != "fused_oracle"), key=gospa.get)
+    radars = sorted((name for name in gospa if name.startswith("radar_")), key=gospa.get)
+    if not paired or not fused or not radars:
+        return []
+    best = fused[0]
+    lines = []
+    for other, what in ((fused[1], "the next method's fused picture") if len(fused) > 1 else (None, ""),
+                        (radars[0], "the better radar alone"), ("fused_oracle", "the oracle's pairs")):
+        if other is None or other not in gospa:
+            continue
+        interval = paired[best][other]
+        difference = gospa[best] - gospa[other]
+        lines.append(f"- {_label(best)} against {what} ({_label(other)}): GOSPA {gospa[best]:.0f} against "
+                     f"{gospa[other]:.0f} m, difference {difference:+.0f} m, paired 95 % interval over the "
+                     f"{spread['pictures']['units']} scenes [{interval[0]:.0f}, {interval[1]:.0f}]: "
+                     f"{_outcome(interval, _label(best), _label(other), difference)}.")
+    return lines
 
 
 def bias_table(sweep: dict) -> str:
@@ -63,12 +112,15 @@ def bias_table(sweep: dict) -> str:
     return "\n".join(lines)
 
 
-def fusion_section(fusion: dict, figure_path: str) -> list[str]:
-    """The section's paragraphs: intro, the pictures, the association, and the bias sweep with its figure at
-    `figure_path` (relative to the markdown file); reports without the sweep have no bias part."""
-    parts = [intro(fusion), picture_table(fusion),
-             "Association in these scenes against the oracle's pairs, summed over common times:",
-             association_table(fusion)]
+def fusion_section(fusion: dict, figure_path: str, spread: dict | None = None) -> list[str]:
+    """The section's paragraphs: intro, the verdicts, the pictures, the association, and the bias sweep with its
+    figure at `figure_path` (relative to the markdown file); reports without the sweep have no bias part, without
+    intervals (`spread`, reports/fusion_intervals.json) no verdicts nor interval columns' values."""
+    told = verdicts(fusion, spread)
+    parts = [intro(fusion), *(["\n".join(told)] if told else []), picture_table(fusion, spread),
+             "Association in these scenes against the oracle's pairs, summed over common times (intervals: "
+             "resampling the scenes):",
+             association_table(fusion, spread)]
     sweep = fusion.get("bias_sweep")
     if sweep:
         parts += [f"Association against radar 2's registration bias in our scenes ({sweep['scenes']} of them; radar "

@@ -179,7 +179,8 @@ def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         comparison_tables.holdout_table(comparison["holdout"]),
         *comparison_tables.sites_section(comparison.get("sites", {"sites": []}), trackers),
-        *([f"{fusion_tables.TITLE}:", *fusion_tables.fusion_section(comparison["fusion"], fusion_picture)]
+        *([f"{fusion_tables.TITLE}:", *fusion_tables.fusion_section(comparison["fusion"], fusion_picture,
+                                                                               comparison.get("intervals", {}).get("fusion"))]
           if "fusion" in comparison else []),
         *([f"{peers_tables.TITLE}:", *peers_tables.section(comparison["peers"]["report"],
                                                            comparison["peers"]["intervals"], "###")]

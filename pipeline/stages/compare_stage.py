@@ -7,7 +7,7 @@ by GOSPA; on the multi-target scenes, GOSPA with its parts, switches and fragmen
 (`reports/scene_metrics.json`, `pipeline.bench.scene_evaluation`); and each one's position error at
 the other radar sites against the training site's (`reports/site_metrics.json`,
 `pipeline.reports.site_report`). Two radars: their tracks associated and fused, the fused picture against each radar alone and the oracle
-association (`reports/fusion.json`, `pipeline.reports.fusion_tables`). Hold-out: the windows the
+association (`reports/fusion.json` with its intervals, `pipeline.reports.fusion_tables`). Hold-out: the windows the
 networks were scored on (`reports/models.json`), run through each tuned filter
 (`models/kalman_tuned.json`):
 - filter: the estimate of each window's last plot, the filters fed the window's plots with
@@ -136,7 +136,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     sites = site_report.site_comparison(_read_json(reports_dir / "site_metrics.json", "evaluate_sites"))
     scenes = _read_json(reports_dir / "scene_metrics.json", "evaluate_scenes")
     intervals = {"trackers": _read_json(reports_dir / "tracker_intervals.json", "evaluate"),
-                 "scenes": _read_json(reports_dir / "scene_intervals.json", "evaluate_scenes")}
+                 "scenes": _read_json(reports_dir / "scene_intervals.json", "evaluate_scenes"),
+                 "fusion": _read_json(reports_dir / "fusion_intervals.json", "fusion")}
     fusion = _read_json(reports_dir / "fusion.json", "fusion")
     peers = {"report": _read_json(reports_dir / "peers.json", "peers"),
              "intervals": _read_json(reports_dir / "peers_intervals.json", "peers")}
@@ -197,7 +198,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         "![A busy scene: tracks by identity, switches marked]"
                                                    "(scene_example.png)",
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
-        f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png"),
+        f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png", intervals["fusion"]),
         f"## {peers_tables.TITLE}", *peers_tables.section(peers["report"], peers["intervals"]),
         "## Networks against the tuned filters on the hold-out windows", holdout_table(comparison["holdout"]),
         f"## {SCALED_TITLE}", SCALED_INTRO, *scaled_filter_tables(detailed, scaled),

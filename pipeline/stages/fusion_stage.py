@@ -3,7 +3,8 @@ fused picture's GOSPA against each radar alone and the oracle association (`rada
 association accuracy against radar 2's registration bias in those scenes (`fusion_bias_sweep`). A scene is a
 unit of the bench's engine (`fusion_bench`: `compute.workers` processes or a Dask scheduler).
 
-Writes `reports/fusion.json` (DVC metrics; the sweep under `bias_sweep`) and `reports/fusion_bias.png` (accuracy
+Writes `reports/fusion.json` (DVC metrics; the sweep under `bias_sweep`), `reports/fusion_intervals.json` (the
+pictures' GOSPA and the methods' accuracy with their intervals over the scenes) and `reports/fusion_bias.png` (accuracy
 and false pairs against the bias). Reads `models/kalman_tuned.json` (the local tracker) and, when `fusion.methods`
 lists network, `models/association_net.pt`.
 """
@@ -21,8 +22,9 @@ log = logging.getLogger("pipeline")
 
 
 def run_fusion(params: Params, models_dir: Path, reports_dir: Path) -> None:
-    report = fusion_bench.fusion_reports(params, models_dir, params.workers)
+    report, intervals = fusion_bench.fusion_reports(params, models_dir, params.workers)
     io.write_json(report, reports_dir / "fusion.json")
+    io.write_json(intervals, reports_dir / "fusion_intervals.json")
     io.write_bytes(fusion_bias_sweep.sweep_figure(report["bias_sweep"]), reports_dir / "fusion_bias.png")
     log.info("fusion: %d scenes, %d common times; GOSPA %s -> %s", report["scenes"], report["common_times"],
              ", ".join(f"{name} {value:.0f} m" for name, value in report["gospa_m"].items()),
