@@ -30,14 +30,14 @@ def test_pictures_best_first_with_their_ratio_to_the_better_radar():
     rows = fusion_tables.picture_table(FUSION).splitlines()[2:]
     assert [row.split(" | ")[0] for row in rows] == ["| fused, oracle pairs", "| fused, network", "| radar 1 alone",
                                                      "| radar 2 alone"]
-    assert rows[1] == "| fused, network | 850 | n/a | -15.0 % | 0 | 0 | 0 | 5 | 1.50 |"
-    assert rows[2] == "| radar 1 alone | 1000 | n/a | +0.0 % | 400 | 500 | 100 | 3 | 1.10 |"
+    assert rows[1] == "| fused, network | 850 | -15.0 % | 0 | 0 | 0 | 5 | 1.50 |"
+    assert rows[2] == "| radar 1 alone | 1000 | +0.0 % | 400 | 500 | 100 | 3 | 1.10 |"
     with_intervals = fusion_tables.picture_table(FUSION, SPREAD).splitlines()[3]
     assert with_intervals == "| fused, network | 850 | [820, 880] | -15.0 % | 0 | 0 | 0 | 5 | 1.50 |"
 
 
 def test_association_counts_and_the_bias_sweep_cells_in_bias_order():
-    assert fusion_tables.association_table(FUSION).splitlines()[2] == "| network | 97.5 % | n/a | 2 | 3 |"
+    assert fusion_tables.association_table(FUSION).splitlines()[2] == "| network | 97.5 % | 2 | 3 |"
     assert fusion_tables.association_table(FUSION, SPREAD).splitlines()[2] == "| network | 97.5 % | [96.0, 99.0] | 2 | 3 |"
     lines = fusion_tables.bias_table(FUSION["bias_sweep"]).splitlines()
     assert lines[0] == "| method | 0 m | 200 m |"

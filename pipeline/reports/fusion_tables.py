@@ -41,30 +41,33 @@ def _shown(interval: list[float], form: str) -> str:
 
 
 def picture_table(fusion: dict, spread: dict | None = None) -> str:
-    """Every picture's GOSPA with its interval over the scenes, its parts, its ratio to the better radar's,
-    switches and tracks per aircraft, best GOSPA first."""
+    """Every picture's GOSPA with its interval over the scenes (a column only where there are intervals), its
+    parts, its ratio to the better radar's, switches and tracks per aircraft, best GOSPA first."""
     gospa, shares = fusion["gospa_m"], fusion["gospa_shares_m"]
     better = min(value for name, value in gospa.items() if name.startswith("radar_"))
-    header = ["picture", "GOSPA (m)", "95 % interval", "vs better radar", "localisation (m)", "missed (m)",
-              "false (m)", "track switches", "tracks per aircraft"]
+    header = ["picture", "GOSPA (m)", *(["95 % interval"] if spread else []), "vs better radar", "localisation (m)",
+              "missed (m)", "false (m)", "track switches", "tracks per aircraft"]
     lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for name in sorted(gospa, key=gospa.get):
-        lines.append(f"| {_label(name)} | {gospa[name]:.0f} | {_shown(_interval(spread, 'pictures', name, 'GOSPA'), '{:.0f}')} | "
-                     f"{100 * (gospa[name] / better - 1):+.1f} % | "
-                     f"{shares[name]['localisation']:.0f} | {shares[name]['missed']:.0f} | "
-                     f"{shares[name]['false']:.0f} | {fusion['track_switches'][name]} | "
-                     f"{fusion['tracks_per_truth'][name]:.2f} |")
+        cells = [_label(name), f"{gospa[name]:.0f}",
+                 *([_shown(_interval(spread, "pictures", name, "GOSPA"), "{:.0f}")] if spread else []),
+                 f"{100 * (gospa[name] / better - 1):+.1f} %", f"{shares[name]['localisation']:.0f}",
+                 f"{shares[name]['missed']:.0f}", f"{shares[name]['false']:.0f}", str(fusion["track_switches"][name]),
+                 f"{fusion['tracks_per_truth'][name]:.2f}"]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def association_table(fusion: dict, spread: dict | None = None) -> str:
     """Each method's pairs against the oracle's over all common times of the fusion scenes, its accuracy's
-    interval over the scenes."""
-    lines = ["| method | accuracy | 95 % interval | false pairs | missed pairs |", "|---|---|---|---|---|"]
+    interval over the scenes (a column only where there are intervals)."""
+    header = ["method", "accuracy", *(["95 % interval"] if spread else []), "false pairs", "missed pairs"]
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for method, counts in fusion["association"].items():
         interval = [100 * value for value in _interval(spread, "association", method, "accuracy")]
-        lines.append(f"| {method} | {100 * counts['accuracy']:.1f} % | {_shown(interval, '{:.1f}')} | "
-                     f"{counts['false_pairs']:,} | {counts['missed_pairs']:,} |")
+        cells = [method, f"{100 * counts['accuracy']:.1f} %", *([_shown(interval, "{:.1f}")] if spread else []),
+                 f"{counts['false_pairs']:,}", f"{counts['missed_pairs']:,}"]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -115,11 +118,11 @@ def bias_table(sweep: dict) -> str:
 def fusion_section(fusion: dict, figure_path: str, spread: dict | None = None) -> list[str]:
     """The section's paragraphs: intro, the verdicts, the pictures, the association, and the bias sweep with its
     figure at `figure_path` (relative to the markdown file); reports without the sweep have no bias part, without
-    intervals (`spread`, reports/fusion_intervals.json) no verdicts nor interval columns' values."""
+    intervals (`spread`, reports/fusion_intervals.json) no verdicts nor interval columns."""
     told = verdicts(fusion, spread)
     parts = [intro(fusion), *(["\n".join(told)] if told else []), picture_table(fusion, spread),
-             "Association in these scenes against the oracle's pairs, summed over common times (intervals: "
-             "resampling the scenes):",
+             "Association in these scenes against the oracle's pairs, summed over common times"
+             + (" (intervals: resampling the scenes):" if spread else ":"),
              association_table(fusion, spread)]
     sweep = fusion.get("bias_sweep")
     if sweep:
