@@ -131,12 +131,16 @@ def _clipped(trajectory: object) -> object:
     return lambda t: trajectory(np.clip(t, start, end))
 
 
-def reference_updates(scenario: Scenario, method: str, models: Models, params: Params) -> dict[str, np.ndarray]:
+def reference_updates(scenario: Scenario, method: str, models: Models, params: Params, records_velocity: bool = False
+                      ) -> dict[str, np.ndarray]:
     """The references' updates, from the target's plots only: `plots` takes each plot as the
-    estimate of one always-confirmed track; a registered reference (the oracle) runs its tracker on them."""
+    estimate of one always-confirmed track; a registered reference (the oracle) runs its tracker on them,
+    its updates with their `velocity` where `records_velocity`."""
     target = scenario.plots.take(scenario.plots.target_id != NO_TARGET)
     if method != PLOTS_REFERENCE:
-        return track(target, registry.compose(method, models, params.tracker, 0.0, params.tracker.seed))
+        return track(target, dataclasses.replace(registry.compose(method, models, params.tracker, 0.0,
+                                                                  params.tracker.seed),
+                                                 records_velocity=records_velocity))
     count = len(target)
     values = {"track_id": np.zeros(count, np.int64), "time_unix_s": target.time, "plot_id": target.plot_id,
               "radar_id": target.radar_id, "x_ecef_m": target.position[:, 0], "y_ecef_m": target.position[:, 1],
@@ -154,14 +158,16 @@ def tracker_seed(params: Params, scenario: object) -> list[int]:
     return [params.tracker.seed, scenario.scenario_id, *([draw] if draw else [])]
 
 
-def tracker_runs(params: Params, models: Models) -> dict[Run, callable]:
-    """Every run of params, and the references (`runs.evaluated`), as run -> track(scenario)."""
+def tracker_runs(params: Params, models: Models, records_velocity: bool = False) -> dict[Run, callable]:
+    """Every run of params, and the references (`runs.evaluated`), as run -> track(scenario); a method's
+    updates with their `velocity` where `records_velocity` (the scorecard's velocity errors read it)."""
     def method_run(run: Run) -> callable:
-        return lambda scenario: track(scenario.plots, registry.compose(
-            run.method, models, params.tracker, run.window_m, tracker_seed(params, scenario), run.management))
+        return lambda scenario: track(scenario.plots, dataclasses.replace(registry.compose(
+            run.method, models, params.tracker, run.window_m, tracker_seed(params, scenario), run.management),
+            records_velocity=records_velocity))
 
     def reference_run(run: Run) -> callable:
-        return lambda scenario: reference_updates(scenario, run.method, models, params)
+        return lambda scenario: reference_updates(scenario, run.method, models, params, records_velocity)
 
     return {run: reference_run(run) if run.reference else method_run(run) for run in evaluated(params.evaluate)}
 
