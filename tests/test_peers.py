@@ -11,7 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
-from pipeline.bench import peers
+from pipeline.bench import peers, scene_evaluation
 from pipeline.reports import peers_tables
 from tests import tracker_fixtures as tf
 
@@ -68,7 +68,7 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
         for name, metrics in report["runs"][material].items():
             assert 0.0 <= metrics["GOSPA"] < math.inf, (material, name)  # GOSPA is no mean: it grows with aircraft
             assert 0.0 <= metrics["probability_of_update"] <= 1.0 and metrics["plots_per_second"] > 0
-            causes = sum(metrics[f"GOSPA_missed_{cause}"] for cause in peers.MISSED_CAUSES)
+            causes = sum(metrics[f"GOSPA_missed_{cause}"] for cause in scene_evaluation.MISSED_CAUSES)
             assert causes == pytest.approx(metrics["GOSPA_missed"], rel=1e-9, abs=1e-9)  # the causes add up
         oracle = report["runs"][material]["oracle_reference"]
         assert oracle["false_tracks"] == 0 and oracle["position_rms_m"] < params.scorecard.association_m
@@ -124,21 +124,3 @@ def test_score_of_a_track_table_is_the_benchs_scorecard(tiny_pipeline, tmp_path)
             assert card[name] is None, name
         else:
             assert card[name] == pytest.approx(value, rel=1e-9), name
-
-
-def test_the_missed_part_is_split_by_why_each_aircraft_scan_was_missed() -> None:
-    """One aircraft over six scans, seen in all but scan 2, held by a track in scans 3 and 4: scans 0 and 1 are
-    missed before its first track, scan 2 for want of a plot, scan 5 after a track; a scan's missed metres go to
-    its causes in proportion (scan 1 also misses a second aircraft never seen: half each)."""
-    from types import SimpleNamespace
-
-    from pipeline.bench.gospa import ScanGospa
-    from pipeline.bench.scene_evaluation import Scene
-    scans = np.array([0, 1, 3, 4, 5])  # the plots' scans: none in scan 2
-    plots = SimpleNamespace(target_id=np.array([7, 7, 7, 7, 7]))
-    truth_scan, truth_id = np.array([0, 1, 1, 2, 3, 4, 5]), np.array([7, 7, 8, 7, 7, 7, 7])
-    scene = Scene(0, plots, scans, np.arange(6), truth_scan, truth_id, {}, {})
-    scored = ScanGospa(np.zeros((6, 3)), np.array([3, 4]), np.array([7, 7]), np.array([1, 1]))
-    split = peers.missed_causes(scene, scored, np.array([10.0, 20.0, 30.0, 0.0, 0.0, 40.0]))
-    np.testing.assert_allclose(split, [[0, 10, 0], [10, 10, 0], [30, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 40]])
-    assert peers.MISSED_CAUSES == ("undetected", "initiation", "after_track")

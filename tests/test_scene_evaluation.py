@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyarrow.compute as pc
@@ -13,6 +14,7 @@ import pytest
 
 from pipeline import io
 from pipeline.bench import scene_evaluation
+from pipeline.bench.gospa import ScanGospa
 from pipeline.bench.runs import declared_runs, with_records
 from pipeline.reports import comparison_tables
 from pipeline.simulation import routes, scenes, simulate
@@ -89,7 +91,8 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
     """`evaluate_scenes` on two tiny generated scenes, each on two draws of noise and clutter: every run
     and the oracle (not the plots reference) with GOSPA's parts adding up to GOSPA; the plot counts those
     of the scenes stage's own draw; intervals over the scenes, the draws drawn again with the same
-    layouts; the picture; the comparison's table."""
+    layouts; the missed and false parts split by cause, adding up to them; the surveillance scorecard of every
+    run, its counts per draw; the picture; the comparison's tables."""
     params = tf.make_params({**CLASSICAL, "scenes.count": 2, "scenes.aircraft": 8, "scenes.duration_s": 240.0,
                              "evaluate.seeds": 2})
     again = scene_evaluation.drawn_scenes(params, 1)
@@ -104,6 +107,11 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
     for values in report["runs"].values():
         parts = sum(values[f"GOSPA_{part}"] for part in ("localisation", "missed", "false"))
         assert parts == pytest.approx(values["GOSPA"]) and values["fragmentation"] >= 0.0
+        for part, causes in (("missed", scene_evaluation.MISSED_CAUSES), ("false", scene_evaluation.FALSE_CAUSES)):
+            assert sum(values[f"GOSPA_{part}_{cause}"] for cause in causes) == pytest.approx(values[f"GOSPA_{part}"])
+        assert 0.0 < values["probability_of_update"] <= 1.0 and values["position_rms_m"] > 0.0
+        assert values["targets"] == 16  # 8 aircraft in each of 2 scenes, a mean over the 2 draws
+    assert report["runs"]["imm_gnn_4000"]["velocity_rms_straight_mps"] > 0.0  # the updates carry their velocity
     intervals = json.loads((tmp_path / "reports" / "scene_intervals.json").read_text())
     assert intervals["units"] == 4 and intervals["clusters"] == 2
     for name, values in report["runs"].items():
@@ -114,3 +122,39 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
     assert table.splitlines()[0].startswith("| tracker | GOSPA (m) | localisation (m) | missed (m) | false (m) | track "
                                             "switches | fragmentation |")
     assert len(table.splitlines()) == 2 + 3
+    detail = comparison_tables.scenes_detail(report["runs"], intervals["runs"])
+    assert len(detail) == 8 and detail[1].startswith("| run | missed (m) | no plot of it (m) |")
+    assert detail[3].startswith("| run | false (m) | clutter tracks (m) |") and "| oracle_reference |" in detail[5]
+    assert comparison_tables.scenes_detail({"old": {"GOSPA": 1.0}}, None) == []
+
+
+def test_the_missed_part_is_split_by_why_each_aircraft_scan_was_missed() -> None:
+    """One aircraft over six scans, seen in all but scan 2, held by a track in scans 3 and 4: scans 0 and 1 are
+    missed before its first track, scan 2 for want of a plot, scan 5 after a track; a scan's missed metres go to
+    its causes in proportion (scan 1 also misses a second aircraft never seen: half each)."""
+    scans = np.array([0, 1, 3, 4, 5])  # the plots' scans: none in scan 2
+    plots = SimpleNamespace(target_id=np.array([7, 7, 7, 7, 7]))
+    truth_scan, truth_id = np.array([0, 1, 1, 2, 3, 4, 5]), np.array([7, 7, 8, 7, 7, 7, 7])
+    scene = scene_evaluation.Scene(0, plots, scans, np.arange(6), truth_scan, truth_id, {}, {})
+    scored = ScanGospa(np.zeros((6, 3)), np.array([3, 4]), np.array([7, 7]), np.array([1, 1]))
+    split = scene_evaluation.missed_causes(scene, scored, np.array([10.0, 20.0, 30.0, 0.0, 0.0, 40.0]))
+    np.testing.assert_allclose(split, [[0, 10, 0], [10, 10, 0], [30, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 40]])
+    assert scene_evaluation.MISSED_CAUSES == ("undetected", "initiation", "after_track")
+
+
+def test_the_false_part_is_split_by_what_each_unassigned_estimate_is() -> None:
+    """Scan 0: track 1 holds aircraft 7, track 2 (its plots aircraft 7's) is a duplicate, track 3 (mostly false
+    plots) clutter; scan 1: track 2 alone, unassigned while no track holds aircraft 7, is astray. A scan's false
+    metres go to its causes in proportion."""
+    plots = SimpleNamespace(plot_id=np.arange(6), target_id=np.array([7, 7, -1, -1, 7, 7]))
+    updates = {"track_id": np.array([1, 2, 3, 3, 2, 3]), "plot_id": np.arange(6)}
+    confirmed = np.ones(6, dtype=bool)
+    scene = scene_evaluation.Scene(0, plots, np.zeros(6, dtype=np.int64), np.arange(2), np.array([0, 1]),
+                                   np.array([7, 7]), {}, {})
+    origins = scene_evaluation._track_origins(scene, updates, confirmed)
+    assert origins == {1: 7, 2: 7, 3: -1}
+    estimates = SimpleNamespace(scan=np.array([0, 0, 0, 1]), track=np.array([1, 2, 3, 2]))
+    scored = ScanGospa(np.zeros((2, 3)), np.array([0]), np.array([7]), np.array([1]))
+    split = scene_evaluation.false_causes(scene, scored, estimates, origins, np.array([30.0, 12.0]))
+    np.testing.assert_allclose(split, [[15, 15, 0], [0, 0, 12]])
+    assert scene_evaluation.FALSE_CAUSES == ("clutter", "duplicate", "astray")

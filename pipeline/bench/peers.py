@@ -18,12 +18,13 @@ Materials (`MATERIALS`):
   `peers.window_s`; each stretch of an aircraft's reports is a target of its own (an aircraft silent for
   `real_traffic.GAP_S` is a new track for any tracker).
 
-Every unit (run, recording) is tracked, timed and scored twice, on the confirmed updates (ours by the run's
-track management rule, Stone Soup's from the update that confirms a track, `min_points`, on):
+Every unit (run, recording) is tracked, timed and scored as the scenes are (`scene_evaluation.scene_result`), on
+the confirmed updates (ours by the run's track management rule, Stone Soup's from the update that confirms a track,
+`min_points`, on):
 
-- GOSPA with its parts, track switches, tracks per truth, fragmentation and purity, as the scenes are scored
-  (`scene_evaluation.scene_result`), and the missed part split by cause (`missed_causes`: undetected, before the
-  first track, after a track);
+- GOSPA with its parts, track switches, tracks per truth, fragmentation and purity, the missed part split by cause
+  (`scene_evaluation.missed_causes`: undetected, before the first track, after a track) and the false part
+  (`scene_evaluation.false_causes`: clutter, duplicate, astray);
 - the surveillance scorecard's parts (`pipeline.surveillance.scorecard`, params' `scorecard`, the update interval
   the radar's scan period) against the per-scan truth.
 
@@ -45,7 +46,7 @@ from typing import Callable
 import numpy as np
 
 from pipeline import io
-from pipeline.bench import engine, evaluation, gospa, intervals, scene_evaluation
+from pipeline.bench import engine, evaluation, intervals, scene_evaluation
 from pipeline.bench.runs import Run, record
 from pipeline.bench.scene_evaluation import Scene, SceneResult
 from pipeline.filters import classical_filters
@@ -58,7 +59,7 @@ from pipeline.surveillance import pcrb, scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track
-from pipeline.tracker.updates import confirmed_associations, positions
+from pipeline.tracker.updates import confirmed_associations
 
 log = logging.getLogger("pipeline")
 
@@ -70,7 +71,8 @@ REAL_TRAFFIC_FOLDER = "pipeline-real-traffic"
 PAIRED = ("GOSPA", "GOSPA_missed", "position_rms_m", "probability_of_update", "ratio_of_long_gaps",
           "tracks_per_aircraft")  # the verdicts'
 INTERVAL_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "GOSPA_missed_undetected",
-                    "GOSPA_missed_initiation", "GOSPA_missed_after_track", "track_switches",
+                    "GOSPA_missed_initiation", "GOSPA_missed_after_track", "GOSPA_false_clutter",
+                    "GOSPA_false_duplicate", "GOSPA_false_astray", "track_switches",
                     "tracks_per_truth", "probability_of_update", "ratio_of_long_gaps", "position_error_mean_m",
                     "position_error_sigma_m", "position_rms_m", "along_track_rms_m", "across_track_rms_m",
                     "velocity_rms_straight_mps", "velocity_rms_manoeuvring_mps", "straight_within_0_25_nm",
@@ -102,14 +104,18 @@ def peer_runs(params: Params) -> list[PeerRun]:
 @dataclass
 class Recording:
     """One recording a run tracks: its material, the scene (plots, scans, the aircraft in coverage at each scan,
-    their trajectories), the truth the scorecard reads (each scan's true position, `scorecard.Truth`) with the
-    simulator's detection probability at each of its rows, and the radar."""
+    their trajectories, and the truth the scorecard reads, `Scene.surveillance`), the simulator's detection
+    probability at each of that truth's rows, and the radar."""
 
     material: str
     scene: Scene
-    truth: scorecard.Truth
     detection_probability: np.ndarray  # (T,) of each truth row
     radar: Radar
+
+    @property
+    def truth(self) -> scorecard.Truth:
+        """Each scan's true position of every aircraft (`scorecard.Truth`)."""
+        return self.scene.surveillance
 
     @property
     def update_interval_s(self) -> float:
@@ -129,7 +135,6 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
     truth = io.read_parquet(folder / "truth.parquet", simulate.TRUTH_SCHEMA)
     column = {name: truth.column(name).to_numpy(zero_copy_only=False)
               for name in ("scenario_id", "target_id", "scan", "time_unix_s", "in_coverage", "detection_probability")}
-    position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy() for axis in "xyz"], axis=1)
     candidates, detection = {}, {}
     for scenario_id, part in plots.scenarios():
         end = part.time[0] + window_s if window_s > 0 else np.inf
@@ -139,14 +144,14 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
         order = np.lexsort((column["target_id"][covered], column["scan"][covered]))
         scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
         targets = np.unique(column["target_id"][mine]).tolist()
+        surveillance = scene_evaluation.surveillance_truth(truth, mine)
         scene = Scene(scenario_id, part, scans, np.unique(np.concatenate([scans, column["scan"][covered]])),
                       column["scan"][covered][order], column["target_id"][covered][order],
-                      {t: scene_evaluation.clipped(flown[t]) for t in targets}, {t: roles[t] for t in targets})
-        candidates[scenario_id] = scene, scorecard.Truth(column["target_id"][mine].astype(np.int64),
-                                                         column["time_unix_s"][mine], position[mine],
-                                                         column["in_coverage"][mine])
+                      {t: scene_evaluation.clipped(flown[t]) for t in targets}, {t: roles[t] for t in targets},
+                      surveillance=surveillance)
+        candidates[scenario_id] = scene, surveillance
         detection[scenario_id] = column["detection_probability"][mine]
-    return [Recording(material, *candidates[scenario_id], detection[scenario_id], params.radar)
+    return [Recording(material, candidates[scenario_id][0], detection[scenario_id], params.radar)
             for scenario_id in chosen(candidates)]
 
 
@@ -252,69 +257,25 @@ def bound_rms(recordings: list[Recording], settings: classical_filters.FilterSet
     return float(np.sqrt(np.concatenate(squares).mean())) if squares else float("nan")
 
 
-MISSED_CAUSES = ("undetected", "initiation", "after_track")  # where a missed aircraft-scan is lost (`missed_causes`)
-
-
-def missed_causes(scene: Scene, scored: gospa.ScanGospa, missed_m: np.ndarray) -> np.ndarray:
-    """Each scan's GOSPA missed share `missed_m` (S,) m split by why its aircraft were missed (S, 3) m, in the
-    order of MISSED_CAUSES (issue 34): `undetected`, no plot of the aircraft in the scan; `initiation`, a plot but
-    no track of the aircraft yet (the scans before its first pair: detections the track management has not yet
-    confirmed); `after_track`, a plot, and the aircraft had a track before (the track lost, deleted, swapped away,
-    or the plot refused by its gate). Every missed aircraft costs a scan's GOSPA the same (c^p / 2), so a scan's
-    missed metres are split in proportion to the counts of its causes."""
-    index = {int(scan): row for row, scan in enumerate(scene.all_scans.tolist())}
-    paired = set(zip(scored.truth.tolist(), scored.scan.tolist()))
-    first = {}
-    for truth, scan in zip(scored.truth.tolist(), scored.scan.tolist()):
-        first[truth] = min(scan, first.get(truth, scan))
-    seen = scene.plots.target_id >= 0
-    detected = set(zip(scene.plots.target_id[seen].tolist(), scene.scans[seen].tolist()))
-    counts = np.zeros((len(scene.all_scans), len(MISSED_CAUSES)))
-    for truth, scan in zip(scene.truth_id.tolist(), scene.truth_scan.tolist()):
-        if (truth, scan) in paired:
-            continue
-        cause = 0 if (truth, scan) not in detected else 1 if scan < first.get(truth, np.inf) else 2
-        counts[index[scan], cause] += 1
-    total = counts.sum(axis=1, keepdims=True)
-    return np.divide(counts * missed_m[:, None], total, out=np.zeros_like(counts), where=total > 0)
-
-
-@dataclass
-class PeerResult:
-    """What tracking one recording with one run contributes: the scenes' metrics' part, the scorecard's, and each
-    scan's missed metres by cause (S, 3) m (`missed_causes`)."""
-
-    scene: SceneResult
-    card: scorecard.Parts
-    missed: np.ndarray
-
-
-def evaluate_unit(bench: PeerBench, name: str, index: int) -> PeerResult:
-    """Track recording `index` (position in `bench.recordings`) with run `name`, and score it."""
+def evaluate_unit(bench: PeerBench, name: str, index: int) -> SceneResult:
+    """Track recording `index` (position in `bench.recordings`) with run `name`, and score it
+    (`scene_evaluation.scene_result`: GOSPA with its parts by cause, the scorecard at the radar's scan period)."""
     recording = bench.recordings[index]
     start = time.perf_counter()
     updates, confirmed = bench.runs[name](recording)
     seconds = time.perf_counter() - start
-    velocity = updates.get("velocity", np.full((len(confirmed), 3), np.nan))
-    settings = scorecard.Settings.from_params(recording.update_interval_s, bench.params.scorecard)
-    card = scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
-                                                  velocity, confirmed), recording.truth, settings)
-    scene = scene_evaluation.scene_result(bench.params, recording.scene, updates, confirmed, seconds, pictured=True)
-    _, scored = scene.pictured
-    scene.pictured = None  # the updates stay in the worker
-    return PeerResult(scene, card, missed_causes(recording.scene, scored, scene.scan_gospa[:, 1]))
+    return scene_evaluation.scene_result(bench.params, recording.scene, updates, confirmed, seconds,
+                                         update_interval_s=recording.update_interval_s)
 
 
-def run_metrics(results: list[PeerResult], plots: int) -> dict[str, float]:
-    """A run's metrics over the recordings of `results`: the scenes' (`scene_evaluation.run_metrics`) and the
-    scorecard's indicators (`scorecard.combined`), the recordings pooled; `plots` is theirs, for the speed."""
-    missed = np.concatenate([r.missed for r in results])
-    return {**scene_evaluation.run_metrics([r.scene for r in results], plots),
-            **{f"GOSPA_missed_{cause}": float(value) for cause, value in zip(MISSED_CAUSES, missed.mean(axis=0))},
-            **scorecard.combined([r.card for r in results])}
+def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
+    """A run's metrics over the recordings of `results` (`scene_evaluation.run_metrics`: the scenes' metrics, the
+    missed and false parts by cause, the scorecard's indicators), the recordings pooled; `plots` is theirs, for
+    the speed."""
+    return scene_evaluation.run_metrics(results, plots)
 
 
-def metric_intervals(params: Params, recordings: list[Recording], units: dict[str, list[PeerResult]]) -> dict:
+def metric_intervals(params: Params, recordings: list[Recording], units: dict[str, list[SceneResult]]) -> dict:
     """The intervals of INTERVAL_METRICS of every run and of the differences of PAIRED between runs over
     `recordings` (one material's), resampling the recordings (`intervals.run_intervals`)."""
     chosen = params.evaluate
@@ -323,14 +284,14 @@ def metric_intervals(params: Params, recordings: list[Recording], units: dict[st
                                    [recording.scene.scenario_id for recording in recordings])
 
 
-def evaluate_all(bench: PeerBench, workers: int) -> dict[str, dict[str, list[PeerResult]]]:
+def evaluate_all(bench: PeerBench, workers: int) -> dict[str, dict[str, list[SceneResult]]]:
     """Every run over every recording on `workers` workers (`engine.completed_units`): by material, by run name
     (in `bench.peers` order), each run's results in recording order."""
     recordings, cost = bench.recordings, {peer.name: peer.cost for peer in bench.peers}
     units = sorted(((peer.name, index) for peer in bench.peers for index in range(len(recordings))),
                    key=lambda unit: -cost[unit[0]] * len(recordings[unit[1]].scene.plots))
     workers = max(1, min(workers, len(units)))
-    done_units: dict[tuple[str, int], PeerResult] = {}
+    done_units: dict[tuple[str, int], SceneResult] = {}
     report = progress_logger(f"peers ({engine.where(workers)})")
     for done, ((name, index), result) in enumerate(engine.completed_units(
             units, workers, evaluate_unit, bench, prepare, bench.arguments), start=1):

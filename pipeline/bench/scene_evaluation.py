@@ -24,6 +24,11 @@ truth's position at that update's time. Per run, over all scans of all scenes:
   aircraft's track falls into (0 for one track all along, and for an aircraft never tracked,
   which the missed part counts);
 - track purity, per confirmed track ever assigned, averaged over those tracks;
+- GOSPA's missed part split by why each missed aircraft-scan was missed (`missed_causes`: no plot of it,
+  before its first track, after a track) and its false part by what each unassigned estimate is
+  (`false_causes`: a clutter track, a second track of an aircraft, a track astray from its aircraft), issue 34;
+- the surveillance scorecard (`pipeline.surveillance.scorecard`, params' `scorecard`, the update interval the
+  radar's scan period) against every aircraft's true position at every scan (`Scene.surveillance`), issue 32;
 - speed, the scenes' plots over the tracking time alone (one core).
 
 With `evaluate.seeds` > 1 every scene is tracked again on further draws of the radar's noise,
@@ -55,10 +60,11 @@ from pipeline.progress import progress_logger
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import Plots
 from pipeline.simulation import scenes, simulate
+from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
-from pipeline.tracker.updates import confirmed_associations
+from pipeline.tracker.updates import confirmed_associations, positions
 
 log = logging.getLogger("pipeline")
 
@@ -80,6 +86,16 @@ class Scene:
     trajectories: dict[int, Callable[[np.ndarray], np.ndarray]]  # aircraft id -> t (s) -> (len(t), 3) m ECEF
     roles: dict[int, str]          # aircraft id -> its role in the scene (scenes.CROSSING ... or a strategy)
     draw: int = 0                  # its draw of noise, detections and clutter (0: the scenes stage's plots)
+    surveillance: scorecard.Truth | None = None  # every truth row, what the scorecard reads (None: no scorecard)
+
+
+def surveillance_truth(truth: pa.Table, rows: np.ndarray) -> scorecard.Truth:
+    """The scorecard's truth (`scorecard.Truth`) of the `rows` (bool or indices) of a simulator's truth table
+    (`simulate.TRUTH_SCHEMA`): each aircraft's true position at every scan, in coverage or not."""
+    position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy()[rows] for axis in "xyz"], axis=1)
+    return scorecard.Truth(truth.column("target_id").to_numpy()[rows].astype(np.int64),
+                           truth.column("time_unix_s").to_numpy()[rows], position,
+                           truth.column("in_coverage").to_numpy(zero_copy_only=False)[rows])
 
 
 def clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -110,7 +126,8 @@ def read_scenes(params: Params, scenes_dir: Path) -> list[Scene]:
         loaded.append(Scene(scene_id, part, scans, np.unique(np.concatenate([scans, truth_scan[mine]])),
                             truth_scan[mine][order], truth_id[mine][order],
                             {int(route["route_id"][0]): clipped(route) for route in aircraft},
-                            dict(zip(roles["route_id"], roles["strategy"]))))
+                            dict(zip(roles["route_id"], roles["strategy"])),
+                            surveillance=surveillance_truth(truth, truth_scene == scene_id)))
     return loaded
 
 
@@ -154,7 +171,7 @@ def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluati
     chosen = scene_params(params)
     models = load_models(models_dir, chosen, [run.method for run in chosen.evaluate.runs]
                          + list(chosen.evaluate.references))
-    runs = evaluation.tracker_runs(chosen, models)
+    runs = evaluation.tracker_runs(chosen, models, records_velocity=True)  # the scorecard's velocity errors
     tracked = read_scenes(chosen, scenes_dir)
     for draw in range(1, chosen.evaluate.seeds):
         tracked += drawn_scenes(chosen, draw)
@@ -186,6 +203,9 @@ class SceneResult:
     track_purity: np.ndarray       # of each confirmed track ever assigned to an aircraft
     seconds: float                 # tracking time alone
     pictured: tuple[dict[str, np.ndarray], gospa.ScanGospa] | None  # updates and assignment, for the picture
+    missed: np.ndarray | None = None  # (S, 3) m: each scan's missed share by cause (`missed_causes`)
+    false: np.ndarray | None = None   # (S, 3) m: each scan's false share by cause (`false_causes`)
+    card: scorecard.Parts | None = None  # the surveillance scorecard's parts (scenes with `surveillance` truth)
 
 
 def evaluate_unit(evaluation: SceneEvaluation, run: Run, index: int, pictured: bool = False) -> SceneResult:
@@ -200,38 +220,133 @@ def evaluate_unit(evaluation: SceneEvaluation, run: Run, index: int, pictured: b
 
 
 def scene_result(params: Params, scene: Scene, updates: dict[str, np.ndarray], confirmed: np.ndarray, seconds: float,
-                 pictured: bool = False) -> SceneResult:
-    """Score a scene's updates (an update table's track ids, times, plot ids and positions), those `confirmed`
-    (U,) bool the estimates (see the module docstring), tracked in `seconds`; keep the updates and the
-    assignment when `pictured`."""
+                 pictured: bool = False, update_interval_s: float | None = None) -> SceneResult:
+    """Score a scene's updates (an update table's track ids, times, plot ids and positions, and `velocity` where
+    recorded), those `confirmed` (U,) bool the estimates (see the module docstring), tracked in `seconds`: GOSPA
+    with its missed and false parts split by cause, and, for a scene with `surveillance` truth, the scorecard's
+    parts (params' `scorecard`, the update interval `update_interval_s`, default params' radar's scan period);
+    keep the updates and the assignment when `pictured`."""
     scan_of_plot = dict(zip(scene.plots.plot_id.tolist(), scene.scans.tolist()))
     update_scans = np.array([scan_of_plot[int(p)] for p in updates["plot_id"]], dtype=np.int64)
-    scored = scene_gospa(scene, ospa.marked_estimates(updates, update_scans, confirmed),
-                         params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
+    estimates = ospa.marked_estimates(updates, update_scans, confirmed)
+    scored = scene_gospa(scene, estimates, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.unique(scene.truth_id)
-    return SceneResult(gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
-                       int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
+    shares = gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order)
+    card = None
+    if scene.surveillance is not None:
+        interval = update_interval_s if update_interval_s is not None else 60.0 / params.radar.rotation_rpm
+        velocity = updates.get("velocity", np.full((len(confirmed), 3), np.nan))
+        card = scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"],
+                                                      positions(updates), velocity, confirmed),
+                               scene.surveillance, scorecard.Settings.from_params(interval, params.scorecard))
+    return SceneResult(shares, int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
                        gospa.tracks_per_truth(scored.truth, scored.track, truths),
                        gospa.track_purity(scored.truth, scored.track), seconds,
-                       (updates, scored) if pictured else None)
+                       (updates, scored) if pictured else None, missed_causes(scene, scored, shares[:, 1]),
+                       false_causes(scene, scored, estimates, _track_origins(scene, updates, confirmed), shares[:, 2]),
+                       card)
+
+
+MISSED_CAUSES = ("undetected", "initiation", "after_track")  # where a missed aircraft-scan is lost (`missed_causes`)
+FALSE_CAUSES = ("clutter", "duplicate", "astray")  # what a false (unassigned) estimate is (`false_causes`)
+
+
+def missed_causes(scene: Scene, scored: gospa.ScanGospa, missed_m: np.ndarray) -> np.ndarray:
+    """Each scan's GOSPA missed share `missed_m` (S,) m split by why its aircraft were missed (S, 3) m, in the
+    order of MISSED_CAUSES (issue 34): `undetected`, no plot of the aircraft in the scan; `initiation`, a plot but
+    no track of the aircraft yet (the scans before its first pair: detections the track management has not yet
+    confirmed); `after_track`, a plot, and the aircraft had a track before (the track lost, deleted, swapped away,
+    or the plot refused by its gate). Every missed aircraft costs a scan's GOSPA the same (c^p / 2), so a scan's
+    missed metres are split in proportion to the counts of its causes."""
+    index = {int(scan): row for row, scan in enumerate(scene.all_scans.tolist())}
+    paired = set(zip(scored.truth.tolist(), scored.scan.tolist()))
+    first = {}
+    for truth, scan in zip(scored.truth.tolist(), scored.scan.tolist()):
+        first[truth] = min(scan, first.get(truth, scan))
+    seen = scene.plots.target_id >= 0
+    detected = set(zip(scene.plots.target_id[seen].tolist(), scene.scans[seen].tolist()))
+    counts = np.zeros((len(scene.all_scans), len(MISSED_CAUSES)))
+    for truth, scan in zip(scene.truth_id.tolist(), scene.truth_scan.tolist()):
+        if (truth, scan) in paired:
+            continue
+        cause = 0 if (truth, scan) not in detected else 1 if scan < first.get(truth, np.inf) else 2
+        counts[index[scan], cause] += 1
+    total = counts.sum(axis=1, keepdims=True)
+    return np.divide(counts * missed_m[:, None], total, out=np.zeros_like(counts), where=total > 0)
+
+
+def _track_origins(scene: Scene, updates: dict[str, np.ndarray], confirmed: np.ndarray) -> dict[int, int]:
+    """Each confirmed track's origin: the aircraft most of its confirmed updates' plots came from, or
+    `plot_table.NO_TARGET` when most were false plots (ties to the lowest id)."""
+    target_of = dict(zip(scene.plots.plot_id.tolist(), scene.plots.target_id.tolist()))
+    tracks = updates["track_id"][confirmed]
+    targets = np.array([target_of[int(p)] for p in updates["plot_id"][confirmed]], dtype=np.int64)
+    origins = {}
+    for track in np.unique(tracks).tolist():
+        values, counts = np.unique(targets[tracks == track], return_counts=True)
+        origins[int(track)] = int(values[np.argmax(counts)])
+    return origins
+
+
+def false_causes(scene: Scene, scored: gospa.ScanGospa, estimates: ospa.ScanEstimates, origins: dict[int, int],
+                 false_m: np.ndarray) -> np.ndarray:
+    """Each scan's GOSPA false share `false_m` (S,) m split by what its unassigned estimates are (S, 3) m, in
+    the order of FALSE_CAUSES (issue 34): `clutter`, a track made mostly of false plots; `duplicate`, a track of
+    an aircraft that another track holds in that scan (the aircraft tracked twice); `astray`, a track of an
+    aircraft that no track holds in that scan (the track too far off its aircraft, or the aircraft out of
+    coverage). A track's aircraft is its origin (`_track_origins`: the most of its confirmed updates' plots).
+    Every unassigned estimate costs a scan's GOSPA the same (c^p / 2), so a scan's false metres are split in
+    proportion to the counts of its causes."""
+    index = {int(scan): row for row, scan in enumerate(scene.all_scans.tolist())}
+    assigned = set(zip(scored.scan.tolist(), scored.track.tolist()))
+    held = set(zip(scored.scan.tolist(), scored.truth.tolist()))
+    counts = np.zeros((len(scene.all_scans), len(FALSE_CAUSES)))
+    for scan, track in zip(estimates.scan.tolist(), estimates.track.tolist()):
+        if (scan, track) in assigned:
+            continue
+        origin = origins.get(int(track), plot_table.NO_TARGET)
+        cause = 0 if origin == plot_table.NO_TARGET else 1 if (scan, origin) in held else 2
+        counts[index[scan], cause] += 1
+    total = counts.sum(axis=1, keepdims=True)
+    return np.divide(counts * false_m[:, None], total, out=np.zeros_like(counts), where=total > 0)
 
 
 def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
-    """A run's metrics from its units (see the module docstring); `plots` is the scenes' plots."""
+    """A run's metrics from its units (see the module docstring); `plots` is the scenes' plots. GOSPA's missed and
+    false parts by cause (`missed_causes`, `false_causes`), and the scorecard's indicators (`scorecard.combined`,
+    the scenes pooled) where every unit has them."""
     shares = np.concatenate([r.scan_gospa for r in results])
     per_truth = np.concatenate([r.tracks_per_truth for r in results])
     purity = np.concatenate([r.track_purity for r in results])
     seconds = sum(r.seconds for r in results)
-    return {"GOSPA": float(shares.sum(axis=1).mean()),
-            **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
-            "track_switches": sum(r.track_switches for r in results),
-            "tracks_per_truth": float(per_truth.mean()) if len(per_truth) else float("nan"),
-            "fragmentation": float(np.maximum(per_truth - 1, 0).mean()) if len(per_truth) else float("nan"),
-            "track_purity": float(purity.mean()) if len(purity) else float("nan"),
-            SPEED: plots / seconds if seconds else float("nan")}
+    metrics = {"GOSPA": float(shares.sum(axis=1).mean()),
+               **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
+               "track_switches": sum(r.track_switches for r in results),
+               "tracks_per_truth": float(per_truth.mean()) if len(per_truth) else float("nan"),
+               "fragmentation": float(np.maximum(per_truth - 1, 0).mean()) if len(per_truth) else float("nan"),
+               "track_purity": float(purity.mean()) if len(purity) else float("nan"),
+               SPEED: plots / seconds if seconds else float("nan")}
+    if all(r.missed is not None for r in results):
+        missed = np.concatenate([r.missed for r in results])
+        metrics.update({f"GOSPA_missed_{cause}": float(value) for cause, value in zip(MISSED_CAUSES, missed.mean(axis=0))})
+    if all(r.false is not None for r in results):
+        false = np.concatenate([r.false for r in results])
+        metrics.update({f"GOSPA_false_{cause}": float(value) for cause, value in zip(FALSE_CAUSES, false.mean(axis=0))})
+    if all(r.card is not None for r in results):
+        metrics.update(scorecard.combined([r.card for r in results]))
+    return metrics
 
 
 PAIRED = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches")  # the verdicts'
+CARD_COUNTS = ("confirmed_updates", "scored_updates", "targets", "targets_never_tracked", "confirmed_tracks",
+               "false_tracks", "track_swaps", "straight_updates", "manoeuvring_updates")  # the scorecard's counts
+
+
+def scene_per_draw(metrics: dict[str, float], draws: int) -> dict[str, float]:
+    """A run's metrics over `draws` draws of every scene with its counts as means per draw (`evaluation.per_draw`,
+    and the scorecard's counts, CARD_COUNTS), so that they stay those of one set of scenes."""
+    return {name: value / draws if name in CARD_COUNTS else value
+            for name, value in per_draw(metrics, draws).items()}
 
 
 def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list[SceneResult]]) -> dict:
@@ -242,7 +357,7 @@ def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list
     names = [name for name in run_metrics(first, 0) if name != SPEED]
     draws = len({scene.draw for scene in tracked})
     return intervals.run_intervals({run.name: results for run, results in units.items()},
-                                   lambda results: per_draw(run_metrics(results, 0), draws), names,
+                                   lambda results: scene_per_draw(run_metrics(results, 0), draws), names,
                                    PAIRED, chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
                                    [scene.scenario_id for scene in tracked])
 
@@ -272,7 +387,6 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, 
         if len(parts[run]) == len(tracked):
             finished = parts.pop(run)
             units_by_run[run] = [finished[i] for i in range(len(tracked))]
-            results[run] = per_draw(run_metrics(units_by_run[run], plots),
-                                               len({scene.draw for scene in tracked}))
+            results[run] = scene_per_draw(run_metrics(units_by_run[run], plots), len({scene.draw for scene in tracked}))
             log.info("evaluate_scenes %s: %s", run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
     return {run: results[run] for run in evaluation.runs}, pictured, {run: units_by_run[run] for run in evaluation.runs}

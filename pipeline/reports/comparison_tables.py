@@ -14,7 +14,8 @@ import numpy as np
 
 from pipeline.bench.intervals import within_noise
 from pipeline.bench.runs import Run
-from pipeline.reports import site_report
+from pipeline.reports import peers_tables, site_report
+from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 
 ORACLE = "oracle"  # the reference whose gap to the best tracker the verdict states
@@ -240,6 +241,25 @@ def scenes_table(runs: Mapping[Run, dict]) -> str:
         lines.append(f"| {run.name} | " + " | ".join(_cell(runs[run].get(m), forms[m]) for m in SCENE_METRICS) + " |")
     return "\n".join(lines)
 
+
+
+def scenes_detail(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> list[str]:
+    """The scenes' GOSPA missed and false parts by cause (`scene_evaluation.missed_causes`, `false_causes`) and the
+    surveillance scorecard of every run with the reference figures it passes, by run name, with the 95 %
+    intervals over the scenes where given; nothing for a report made before them."""
+    blocks = []
+    for intro, columns in ((peers_tables.MISSED_INTRO, peers_tables.MISSED_COLUMNS),
+                           (peers_tables.FALSE_INTRO, peers_tables.FALSE_COLUMNS)):
+        table = peers_tables.cause_table(runs, run_intervals, columns)
+        blocks += [intro, table] if table else []
+    if runs and all("probability_of_update" in values for values in runs.values()):
+        blocks += ["The surveillance scorecard on the scenes (`pipeline/surveillance/scorecard.py`: EUROCAE ED-129C's "
+                   "probability of update and ratio of long gaps, the ECAC guidelines' position error figures, "
+                   "velocity, false tracks, swaps, initiation time; counts per set of scenes), best GOSPA first:",
+                   peers_tables.material_table(runs, run_intervals),
+                   "Each run against the reference figures on the scenes:",
+                   peers_tables.references_table({name: scorecard.judged(values) for name, values in runs.items()})]
+    return blocks
 
 
 def holdout_table(holdout: dict) -> str:

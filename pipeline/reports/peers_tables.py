@@ -53,16 +53,21 @@ def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] |
 MISSED_COLUMNS = (("GOSPA_missed", "missed (m)"), ("GOSPA_missed_undetected", "no plot of it (m)"),
                   ("GOSPA_missed_initiation", "before its first track (m)"),
                   ("GOSPA_missed_after_track", "after a track (m)"))
+FALSE_COLUMNS = (("GOSPA_false", "false (m)"), ("GOSPA_false_clutter", "clutter tracks (m)"),
+                 ("GOSPA_false_duplicate", "second tracks of an aircraft (m)"),
+                 ("GOSPA_false_astray", "tracks astray (m)"))
 
 
-def missed_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> str | None:
-    """GOSPA's missed part split by cause (`pipeline.bench.peers.missed_causes`), best missed part first, with
-    the 95 % intervals where given; None for a report made before the split."""
-    if not all(metric in values for values in runs.values() for metric, _ in MISSED_COLUMNS):
+def cause_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None,
+                columns: tuple[tuple[str, str], ...] = MISSED_COLUMNS) -> str | None:
+    """A GOSPA part and its split by cause (`columns`: MISSED_COLUMNS, `scene_evaluation.missed_causes`, or
+    FALSE_COLUMNS, `scene_evaluation.false_causes`), smallest part first, with the 95 % intervals where given;
+    None for a report made before the split."""
+    if not all(metric in values for values in runs.values() for metric, _ in columns):
         return None
-    names = tuple(metric for metric, _ in MISSED_COLUMNS)
-    lines = ["| run | " + " | ".join(header for _, header in MISSED_COLUMNS) + " |", "|---" * (len(names) + 1) + "|"]
-    for name in sorted(runs, key=lambda n: runs[n]["GOSPA_missed"]):
+    names = tuple(metric for metric, _ in columns)
+    lines = ["| run | " + " | ".join(header for _, header in columns) + " |", "|---" * (len(names) + 1) + "|"]
+    for name in sorted(runs, key=lambda n: runs[n][names[0]]):
         own = (run_intervals or {}).get(name, {})
         lines.append(f"| {name} | " + " | ".join(_cell(metric, "{:.0f}", runs[name][metric], own.get(metric), names)
                                                  for metric in names) + " |")
@@ -74,6 +79,10 @@ MISSED_INTRO = ("Where the missed metres are lost: each aircraft-scan a run miss
                 "the scan (the radar's misses: no tracker can do better without coasting), a plot but no track of the "
                 "aircraft yet (the scans its track management takes to confirm), a plot and the aircraft had a track "
                 "before (a track lost, deleted or swapped away, or the plot refused by the gate).")
+FALSE_INTRO = ("What the false metres are: each confirmed estimate no aircraft is assigned split by what its track "
+               "is (its aircraft: the most of its confirmed plots'), its share of the scan's false part in metres: a "
+               "clutter track (most of its plots false), a second track of an aircraft another track holds in the "
+               "scan, a track astray (its aircraft held by no track in the scan: the track too far off it).")
 
 
 FIGURES = {"single-radar": "ECAC single-radar", "multi-radar": "ECAC multi-radar", "ED-129C": "ED-129C"}
@@ -178,10 +187,11 @@ def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
     for material, title in (("test", "Test scenarios"), ("real_traffic", "Real traffic")):
         if material in report["runs"]:
             runs_intervals = intervals.get(material, {}).get("runs")
-            missed = missed_table(report["runs"][material], runs_intervals)
+            missed = cause_table(report["runs"][material], runs_intervals, MISSED_COLUMNS)
+            false = cause_table(report["runs"][material], runs_intervals, FALSE_COLUMNS)
             blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals),
                        *bound_line(report["materials"][material]),
-                       *([MISSED_INTRO, missed] if missed else []),
+                       *([MISSED_INTRO, missed] if missed else []), *([FALSE_INTRO, false] if false else []),
                        f"{heading} {title}: the reference figures", references_table(report["references"][material])]
     return blocks
 

@@ -49,7 +49,6 @@ from pipeline.reports.comparison_tables import (
     GRADIENT_LABELS,
     SCALED_INTRO,
     SCALED_TITLE,
-    SCENE_METRICS,
     SCENES_TITLE,
     SITES_INTRO,
     TRACKER_METRICS,
@@ -58,6 +57,7 @@ from pipeline.reports.comparison_tables import (
     holdout_table,
     scaled_filter_tables,
     scaled_verdict,
+    scenes_detail,
     scenes_intro,
     scenes_table,
     sites_section,
@@ -171,8 +171,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                   "holdout_estimators": detailed,
                   "scenes": {**{key: scenes[key] for key in ("scenes", "aircraft_per_scene", "duration_s", "plots",
                                                              "example")},
-                             "runs": {name: {m: values.get(m) for m in SCENE_METRICS}
-                                      for name, values in scenes["runs"].items()}},
+                             "runs": scenes["runs"]},
                   "fusion": fusion, "intervals": intervals, "peers": peers}
     site_part = sites_section(sites, runs)
     gospa_part = gospa_table(runs)
@@ -197,6 +196,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         scenes_table(with_records(comparison["scenes"]["runs"], declared, reports_dir / "scene_metrics.json")),
         "![A busy scene: tracks by identity, switches marked]"
                                                    "(scene_example.png)",
+        *scenes_detail(scenes["runs"], intervals["scenes"].get("runs")),
         *(["## Radar sites", SITES_INTRO, *site_part] if site_part else []),
         f"## {fusion_tables.TITLE}", *fusion_tables.fusion_section(fusion, "fusion_bias.png", intervals["fusion"]),
         f"## {peers_tables.TITLE}", *peers_tables.section(peers["report"], peers["intervals"]),
