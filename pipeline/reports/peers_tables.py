@@ -40,14 +40,43 @@ def _cell(metric: str, form: str, value: float | None, interval: list[float] | N
     return f"{text} [{_shown(interval[0], form)}, {_shown(interval[1], form)}]"
 
 
-def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> str:
-    """Every run's row (COLUMNS), best GOSPA first; the 95 % interval beside WITH_INTERVAL where given."""
-    lines = ["| run | " + " | ".join(header for _, header, _ in COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
+def stone_soup_fastest(runs: Mapping[str, dict], families: Mapping[str, str] | None) -> float | None:
+    """The plots/s of Stone Soup's fastest run among `runs` (by `families`), None where none ran."""
+    rates = [runs[name]["plots_per_second"] for name in runs if (families or {}).get(name) == STONE_SOUP]
+    return max(rates) if rates else None
+
+
+def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None,
+                   families: Mapping[str, str] | None = None) -> str:
+    """Every run's row (COLUMNS), best GOSPA first; the 95 % interval beside WITH_INTERVAL where given; and where
+    Stone Soup ran (`families`), each run's plots/s as a multiple of Stone Soup's fastest on the same plots."""
+    fastest = stone_soup_fastest(runs, families)
+    headers = [header for _, header, _ in COLUMNS] + (["× Stone Soup's fastest"] if fastest else [])
+    lines = ["| run | " + " | ".join(headers) + " |", "|---" * (len(headers) + 1) + "|"]
     for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
         own = (run_intervals or {}).get(name, {})
-        lines.append(f"| {name} | " + " | ".join(_cell(metric, form, runs[name].get(metric), own.get(metric))
-                                                 for metric, _, form in COLUMNS) + " |")
+        cells = [_cell(metric, form, runs[name].get(metric), own.get(metric)) for metric, _, form in COLUMNS]
+        if fastest:
+            cells.append(f"{runs[name]['plots_per_second'] / fastest:,.0f}×")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def speed_line(report: dict, material: str = "test") -> list[str]:
+    """Our runs' plots/s on `material` as multiples of Stone Soup's fastest on the same plots, by family (issue
+    33's goal: the classical trackers at least 200 times); none where Stone Soup did not run."""
+    runs, families = report["runs"].get(material, {}), report["families"]
+    fastest = stone_soup_fastest(runs, families)
+    if not fastest:
+        return []
+    told = []
+    for family in dict.fromkeys(families[name] for name in runs):
+        if family in (STONE_SOUP, REFERENCE):
+            continue
+        ratios = sorted(runs[name]["plots_per_second"] / fastest for name in runs if families[name] == family)
+        told.append(f"{family} {ratios[0]:,.0f}×" if len(ratios) == 1 else f"{family} {ratios[0]:,.0f}-{ratios[-1]:,.0f}×")
+    return [f"- speed (plots/s on the same plots, tracking alone, one core): Stone Soup's fastest {fastest:,.0f}; "
+            f"ours {', '.join(told)} as many (issue 33's goal for the classical trackers: 200×)."]
 
 
 MISSED_COLUMNS = (("GOSPA_missed", "missed (m)"), ("GOSPA_missed_undetected", "no plot of it (m)"),
@@ -189,7 +218,8 @@ def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
             runs_intervals = intervals.get(material, {}).get("runs")
             missed = cause_table(report["runs"][material], runs_intervals, MISSED_COLUMNS)
             false = cause_table(report["runs"][material], runs_intervals, FALSE_COLUMNS)
-            blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals),
+            blocks += [f"{heading} {title}", material_table(report["runs"][material], runs_intervals, report["families"]),
+                       *speed_line(report, material),
                        *bound_line(report["materials"][material]),
                        *([MISSED_INTRO, missed] if missed else []), *([FALSE_INTRO, false] if false else []),
                        f"{heading} {title}: the reference figures", references_table(report["references"][material])]

@@ -174,7 +174,9 @@ def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[
         *([f"{comparison_tables.SCENES_TITLE} ({comparison['scenes']['scenes']} scenes of "
             f"{comparison['scenes']['aircraft_per_scene']} aircraft; `reports/comparison.md` says how they are made "
             "and scored):", comparison_tables.scenes_table(with_records(comparison["scenes"]["runs"], declared,
-                                                                       "reports/comparison.json"))]
+                                                                       "reports/comparison.json")),
+            *comparison_tables.scenes_detail(comparison["scenes"]["runs"],
+                                             comparison.get("intervals", {}).get("scenes", {}).get("runs"))]
           if "scenes" in comparison else []),
         "Full report with the tuning results: `reports/comparison.md`. On the hold-out windows:",
         comparison_tables.holdout_table(comparison["holdout"]),
@@ -222,7 +224,8 @@ def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -
         "route), so a difference of a few metres may be noise; a run of today's code backs each with its paired "
         "interval.", ""]
     peers = comparison.get("peers")
-    against_peers = peers_tables.verdicts(peers["report"], peers["intervals"]) if peers else []
+    against_peers = (peers_tables.verdicts(peers["report"], peers["intervals"]) + peers_tables.speed_line(peers["report"])
+                     if peers else [])
     test = peers["report"]["materials"].get("test") if peers else None
     on_what = (f"{len(test['recordings'])} test scenarios of {test['window_s'] / 60:.0f} minutes; the real-traffic scene, "
                "one recording without an interval, in `reports/peers.md`" if test else "`reports/peers.md`")
