@@ -56,4 +56,8 @@ def test_the_best_fused_picture_wins_only_where_its_paired_interval_excludes_zer
         "- fused, network against the oracle's pairs (fused, oracle pairs): GOSPA 850 against 800 m, difference "
         "+50 m, paired 95 % interval over the 6 scenes [-10, 110]: a tie within the noise."]
     assert fusion_tables.verdicts(FUSION, None) == []
+    one_scene = {"pictures": {"units": 1, "runs": {"fused_network": {"GOSPA": [None, None]}},  # JSON's NaN: null
+                              "paired": {"GOSPA": {"fused_network": {"radar_1": [None, None]}}}}}
+    assert fusion_tables.verdicts(FUSION, one_scene)[0].endswith("over the 1 scenes n/a: a tie within the noise.")
+    assert "| 850 | n/a |" in fusion_tables.picture_table(FUSION, one_scene)
     assert fusion_tables.fusion_section(FUSION, "x.png", SPREAD)[1].startswith("- fused, network against")

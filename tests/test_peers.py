@@ -68,6 +68,14 @@ def test_speeds_are_told_as_multiples_of_stone_soups_fastest() -> None:
     assert peers_tables.speed_line({"runs": {"test": {}}, "families": {}}) == []
 
 
+def test_an_interval_read_back_as_null_is_shown_without_one() -> None:
+    """A metric undefined on every resample has the interval [NaN, NaN], which JSON writes as [null, null]."""
+    runs = {"a": {"GOSPA_missed": 10.0, "GOSPA_missed_undetected": 1.0, "GOSPA_missed_initiation": 4.0,
+                  "GOSPA_missed_after_track": 5.0}}
+    table = peers_tables.cause_table(runs, {"a": {"GOSPA_missed": [None, None], "GOSPA_missed_initiation": [3.0, 5.0]}})
+    assert table.splitlines()[2] == "| a | 10 | 1 | 4 [3, 5] | 5 |"
+
+
 def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
     """`dvc repro peers` in a copy of the tiny pipeline: every run on both materials, the scorecard's indicators
     beside the reference figures, intervals over the test scenarios, the Markdown report."""

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+from pipeline.reports.peers_tables import as_floats
+
 TITLE = "Two radars: track-to-track association and the fused picture"
 PICTURE_LABELS = {"radar_1": "radar 1 alone", "radar_2": "radar 2 alone", "fused_oracle": "fused, oracle pairs"}
 
@@ -32,7 +34,7 @@ def intro(fusion: dict) -> str:
 
 def _interval(spread: dict | None, part: str, name: str, metric: str) -> list[float]:
     """A run's interval of `metric` in `part` ("pictures", "association") of the intervals, [NaN, NaN] without."""
-    return (spread or {}).get(part, {}).get("runs", {}).get(name, {}).get(metric, [math.nan, math.nan])
+    return as_floats((spread or {}).get(part, {}).get("runs", {}).get(name, {}).get(metric))
 
 
 def _shown(interval: list[float], form: str) -> str:
@@ -94,11 +96,11 @@ def verdicts(fusion: dict, spread: dict | None) -> list[str]:
                         (radars[0], "the better radar alone"), ("fused_oracle", "the oracle's pairs")):
         if other is None or other not in gospa:
             continue
-        interval = paired[best][other]
+        interval = as_floats(paired.get(best, {}).get(other))
         difference = gospa[best] - gospa[other]
         lines.append(f"- {_label(best)} against {what} ({_label(other)}): GOSPA {gospa[best]:.0f} against "
                      f"{gospa[other]:.0f} m, difference {difference:+.0f} m, paired 95 % interval over the "
-                     f"{spread['pictures']['units']} scenes [{interval[0]:.0f}, {interval[1]:.0f}]: "
+                     f"{spread['pictures']['units']} scenes {_shown(interval, '{:.0f}')}: "
                      f"{_outcome(interval, _label(best), _label(other), difference)}.")
     return lines
 

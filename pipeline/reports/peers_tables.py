@@ -26,6 +26,11 @@ VERDICTS = (("GOSPA", "GOSPA", True), ("position_rms_m", "position RMS", True),
             ("probability_of_update", "probability of update", False), ("ratio_of_long_gaps", "ratio of long gaps", True))
 
 
+def as_floats(interval: list[float | None] | None) -> list[float]:
+    """An interval as read from JSON (NaN is written there as null) with NaN for null; [NaN, NaN] for none."""
+    return [math.nan if value is None else float(value) for value in (interval or [None, None])]
+
+
 def _shown(value: float | None, form: str) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "n/a"
@@ -35,7 +40,7 @@ def _shown(value: float | None, form: str) -> str:
 def _cell(metric: str, form: str, value: float | None, interval: list[float] | None,
           with_interval: tuple[str, ...] = WITH_INTERVAL) -> str:
     text = _shown(value, form)
-    if interval is None or metric not in with_interval or not all(math.isfinite(v) for v in interval):
+    if interval is None or metric not in with_interval or not all(math.isfinite(v) for v in as_floats(interval)):
         return text
     return f"{text} [{_shown(interval[0], form)}, {_shown(interval[1], form)}]"
 
@@ -155,7 +160,7 @@ def verdicts(report: dict, intervals: dict) -> list[str]:
     lines = []
     for metric, label, lower_better in VERDICTS:
         difference = runs[ours][metric] - runs[theirs][metric]
-        low, high = paired.get(metric, {}).get(ours, {}).get(theirs, [math.nan, math.nan])
+        low, high = as_floats(paired.get(metric, {}).get(ours, {}).get(theirs))
         if not (math.isfinite(low) and math.isfinite(high)) or low <= 0.0 <= high:
             outcome = "a tie within the noise"
         else:
