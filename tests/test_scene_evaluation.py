@@ -126,6 +126,10 @@ def test_stage_writes_the_metrics_and_the_picture(tmp_path, models):
     assert len(detail) == 8 and detail[1].startswith("| run | missed (m) | no plot of it (m) |")
     assert detail[3].startswith("| run | false (m) | clutter tracks (m) |") and "| oracle_reference |" in detail[5]
     assert comparison_tables.scenes_detail({"old": {"GOSPA": 1.0}}, None) == []
+    read_back = json.loads(json.dumps(report["runs"]).replace("NaN", "null"))  # io.write_json writes NaN as null
+    for values in read_back.values():
+        values["manoeuvring_within_1_nm"] = None
+    assert "| n/a |" in comparison_tables.scenes_detail(read_back, intervals["runs"])[7]
 
 
 def test_the_missed_part_is_split_by_why_each_aircraft_scan_was_missed() -> None:

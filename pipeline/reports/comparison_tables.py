@@ -243,6 +243,11 @@ def scenes_table(runs: Mapping[Run, dict]) -> str:
 
 
 
+def _numbers(values: Mapping[str, float | None]) -> dict[str, float]:
+    """Metrics as read from JSON, null (a NaN written) back to NaN."""
+    return {name: float("nan") if value is None else value for name, value in values.items()}
+
+
 def scenes_detail(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> list[str]:
     """The scenes' GOSPA missed and false parts by cause (`scene_evaluation.missed_causes`, `false_causes`) and the
     surveillance scorecard of every run with the reference figures it passes, by run name, with the 95 %
@@ -258,7 +263,8 @@ def scenes_detail(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | 
                    "velocity, false tracks, swaps, initiation time; counts per set of scenes), best GOSPA first:",
                    peers_tables.material_table(runs, run_intervals),
                    "Each run against the reference figures on the scenes:",
-                   peers_tables.references_table({name: scorecard.judged(values) for name, values in runs.items()})]
+                   peers_tables.references_table({name: scorecard.judged(_numbers(values))
+                                                  for name, values in runs.items()})]
     return blocks
 
 
