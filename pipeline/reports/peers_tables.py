@@ -159,13 +159,14 @@ def verdicts(report: dict, intervals: dict) -> list[str]:
     paired = intervals.get("test", {}).get("paired", {})
     lines = []
     for metric, label, lower_better in VERDICTS:
-        difference = runs[ours][metric] - runs[theirs][metric]
+        mine, their = as_floats([runs[ours].get(metric), runs[theirs].get(metric)])  # JSON's null: NaN
+        difference = mine - their
         low, high = as_floats(paired.get(metric, {}).get(ours, {}).get(theirs))
         if not (math.isfinite(low) and math.isfinite(high)) or low <= 0.0 <= high:
             outcome = "a tie within the noise"
         else:
             outcome = f"{ours if (difference < 0) == lower_better else theirs} wins"
-        lines.append(f"- {label}: {ours} {runs[ours][metric]:.4g} against {theirs} {runs[theirs][metric]:.4g}, "
+        lines.append(f"- {label}: {ours} {mine:.4g} against {theirs} {their:.4g}, "
                      f"difference {difference:+.4g}, paired 95 % interval [{low:.4g}, {high:.4g}]: {outcome}.")
     return lines
 
