@@ -129,7 +129,7 @@ def test_evaluate_scores_each_run_under_its_own_rule():
     """A run naming m_of_n is tracked and scored under MOfN; the others and the references under the
     tracker's rule (thesis by default)."""
     tree = tf.params_tree()
-    tree["evaluate"]["site_runs"] = tree["evaluate"]["scene_runs"] = []
+    tree["evaluate"]["site_runs"] = tree["evaluate"]["scene_runs"] = tree["peers"]["runs"] = []
     tree["evaluate"]["runs"] = [{"method": "via", "window_m": 4000.0}, {"method": "imm", "window_m": 4000.0},
                                 {"method": "imm", "window_m": 4000.0, "management": "m_of_n"}]
     params = parse_params(tree)
