@@ -151,6 +151,21 @@ def test_settings_and_truth_out_of_bounds_are_named() -> None:
         scorecard.scorecard(updates_of(1, truth, np.arange(3)), blind, SETTINGS)
 
 
+def test_a_recording_without_a_target_in_coverage_adds_its_tracks_as_false_and_no_time() -> None:
+    """A bench route flown wholly outside coverage: a confirmed track on clutter (50 km from the aircraft) counts
+    as false, the recording adds no time to the probability of update, and pooled with a covered recording it
+    leaves that one's figures unchanged."""
+    truth = straight_truth(0, TIMES)
+    blind = Truth(truth.target_id, truth.time_s, truth.position, np.zeros(len(TIMES), bool))
+    blind_parts = scorecard.parts(updates_of(1, truth, np.arange(3), (0.0, 50e3, 0.0)), blind, SETTINGS)
+    assert (blind_parts.targets, blind_parts.confirmed_tracks, blind_parts.false_tracks, blind_parts.duration_s) == \
+        (0, 1, 1, 0.0)
+    covered = scorecard.parts(updates_of(2, truth, np.arange(len(TIMES))), truth, SETTINGS)
+    alone, pooled = scorecard.combined([covered]), scorecard.combined([covered, blind_parts])
+    assert pooled["probability_of_update"] == alone["probability_of_update"]
+    assert (pooled["false_tracks"], pooled["confirmed_tracks"]) == (1, 2)
+
+
 def test_two_recordings_combined_score_as_one_recording_of_both() -> None:
     """The bench's units: the parts of two recordings, combined, give what one recording holding both (the second
     moved far in time, its ids its own) gives."""

@@ -6,7 +6,9 @@ on the order scenarios are run in.
 
 Besides the thesis's metrics every run gets OSPA (`pipeline.bench.ospa`), GOSPA with its parts, track
 switches, tracks per truth and track purity (`pipeline.bench.gospa`, on OSPA's sets of each scan), ANEES
-where the tracker gives covariances, and its speed in plots per second (tracking time only, one core). Two
+where the tracker gives covariances, the surveillance scorecard (`pipeline.surveillance.scorecard`, params'
+`scorecard`, the update interval the radar's scan period; issue 32) of its confirmed updates against the
+target's true position at every scan, and its speed in plots per second (tracking time only, one core). Two
 references bound the problem: `plots`, the target's raw plots taken as the estimate with the
 true association, and `oracle`, the tuned IMM given the true association.
 
@@ -45,12 +47,13 @@ from pipeline.progress import progress_logger
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import NO_TARGET, Plots
 from pipeline.simulation import routes, simulate
+from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
-from pipeline.tracker.updates import COLUMNS
+from pipeline.tracker.updates import COLUMNS, confirmed_associations, positions
 
 log = logging.getLogger("pipeline")
 
@@ -70,6 +73,16 @@ class Scenario:
     coverage_scans: np.ndarray    # the scans in which the target was in radar coverage
     strategy: str                 # the route's strategy (routes.STRATEGIES), for metrics by kind of flight
     draw: int = 0                 # its draw of noise, detections and clutter (0: the simulate stage's plots)
+    surveillance: scorecard.Truth | None = None  # the target at every scan, what the scorecard reads (None: none)
+
+
+def surveillance_truth(truth: pa.Table, rows: np.ndarray) -> scorecard.Truth:
+    """The scorecard's truth (`scorecard.Truth`) of the `rows` (bool or indices) of a simulator's truth table
+    (`simulate.TRUTH_SCHEMA`): each aircraft's true position at every scan, in coverage or not."""
+    position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy()[rows] for axis in "xyz"], axis=1)
+    return scorecard.Truth(truth.column("target_id").to_numpy()[rows].astype(np.int64),
+                           truth.column("time_unix_s").to_numpy()[rows], position,
+                           truth.column("in_coverage").to_numpy(zero_copy_only=False)[rows])
 
 
 def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
@@ -87,7 +100,8 @@ def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Tab
                                                                 (part.target_id != NO_TARGET).tolist())),
                                   _clipped(trajectory), np.array([plot_scans[p] for p in part.plot_id.tolist()]),
                                   np.unique(truth_scans[(truth_scenarios == scenario_id) & in_coverage]),
-                                  str(route.column("strategy")[0].as_py())))
+                                  str(route.column("strategy")[0].as_py()),
+                                  surveillance=surveillance_truth(truth_table, truth_scenarios == scenario_id)))
     return scenarios
 
 
@@ -191,6 +205,7 @@ class UnitResult:
     nees: np.ndarray                       # NEES of each confirmed target update (NaN without covariances)
     seconds: float                         # tracking time alone
     updates: dict[str, np.ndarray] | None  # the updates, kept only where a picture needs them
+    card: scorecard.Parts | None = None    # the surveillance scorecard's parts (scenarios with `surveillance` truth)
 
 
 @dataclass
@@ -214,7 +229,8 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
     scenarios = read_scenarios(params, simulated_dir, routes_dir)
     for draw in range(1, params.evaluate.seeds):
         scenarios += drawn_scenarios(params, routes_dir, draw)
-    return Evaluation(params, (simulated_dir, routes_dir, models_dir), scenarios, tracker_runs(params, models))
+    return Evaluation(params, (simulated_dir, routes_dir, models_dir), scenarios,
+                      tracker_runs(params, models, records_velocity=True))
 
 
 def evaluate_unit(evaluation: Evaluation, run: Run, index: int) -> UnitResult:
@@ -233,13 +249,18 @@ def evaluate_unit(evaluation: Evaluation, run: Run, index: int) -> UnitResult:
                           params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.zeros(int(np.isin(scans, scenario.coverage_scans).any()), dtype=np.int64)
     pictured = run.name == params.evaluate.example_run and index < params.evaluate.example_scenarios
+    card = None if scenario.surveillance is None else scorecard.parts(
+        scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
+                               updates.get("velocity", np.full((len(updates["track_id"]), 3), np.nan)),
+                               confirmed_associations(updates, management)),
+        scenario.surveillance, scorecard.Settings.from_params(60.0 / params.radar.rotation_rpm, params.scorecard))
     return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
                       gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
                       int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
                       gospa.tracks_per_truth(scored.truth, scored.track, truths),
                       gospa.track_purity(scored.truth, scored.track),
                       confirmed_nees(updates, scenario.is_target, scenario.truth, management), seconds,
-                      updates if pictured else None)
+                      updates if pictured else None, card)
 
 
 def target_gospa(scenario: Scenario, estimates: ospa.ScanEstimates, scans: np.ndarray, cutoff: float, order: float
@@ -260,14 +281,18 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
     scenarios, and the speed counts the tracking time alone, summed over the units. GOSPA and its
     parts (m) are means over all scans, the parts each scan's shares (`pipeline.bench.gospa`), so they add
     up to GOSPA; track switches are summed over the routes, tracks per truth averaged over the
-    routes whose target was in coverage, purity over the confirmed tracks ever assigned to a target."""
+    routes whose target was in coverage, purity over the confirmed tracks ever assigned to a target; the
+    scorecard's indicators (`scorecard.combined`, the scenarios pooled) where every unit has them, but its
+    `tracks_per_aircraft`: the name is the continuity metric's (`tracker_metrics.summarise`: routes the radar
+    saw, a route never tracked counting 0), kept as the comparison has always read it."""
     nees = np.concatenate([r.nees for r in results])
     per_scan = np.concatenate([r.scan_ospa for r in results])
     shares = np.concatenate([r.scan_gospa for r in results])
     per_truth = np.concatenate([r.tracks_per_truth for r in results])
     purity = np.concatenate([r.track_purity for r in results])
     seconds = sum(r.seconds for r in results)
-    return {**summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
+    card = scorecard.combined([r.card for r in results]) if all(r.card is not None for r in results) else {}
+    return {**card, **summarise([r.counts for r in results]), "OSPA": float(per_scan.mean()),
             "OSPA_p90": float(np.percentile(per_scan, 90)), "GOSPA": float(shares.sum(axis=1).mean()),
             **{f"GOSPA_{part}": float(value) for part, value in zip(gospa.PARTS, shares.mean(axis=0))},
             "track_switches": sum(r.track_switches for r in results),
@@ -277,12 +302,13 @@ def run_metrics(results: list[UnitResult], plots: int) -> dict[str, float]:
             SPEED: plots / seconds if seconds else float("nan")}
 
 
-COUNTS = ("NOFPA", "NOPA", "target_plots", "false_plots", "track_switches")  # sums over the scenarios
+COUNTS = ("NOFPA", "NOPA", "target_plots", "false_plots", "track_switches", *scorecard.COUNTS)  # sums over them
 
 
 def per_draw(metrics: dict[str, float], draws: int) -> dict[str, float]:
-    """A run's metrics over `draws` draws of every scenario with its counts (COUNTS) as means per draw,
-    so that they stay those of one test split, the thesis's tables' scale; ratios and means need nothing."""
+    """A run's metrics over `draws` draws of every scenario (or scene) with its counts (COUNTS, the scorecard's
+    included) as means per draw, so that they stay those of one test split (or set of scenes), the thesis's
+    tables' scale; ratios and means need nothing."""
     if draws == 1:
         return metrics
     return {name: value / draws if name in COUNTS else value for name, value in metrics.items()}

@@ -144,7 +144,7 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
         order = np.lexsort((column["target_id"][covered], column["scan"][covered]))
         scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
         targets = np.unique(column["target_id"][mine]).tolist()
-        surveillance = scene_evaluation.surveillance_truth(truth, mine)
+        surveillance = evaluation.surveillance_truth(truth, mine)
         scene = Scene(scenario_id, part, scans, np.unique(np.concatenate([scans, column["scan"][covered]])),
                       column["scan"][covered][order], column["target_id"][covered][order],
                       {t: scene_evaluation.clipped(flown[t]) for t in targets}, {t: roles[t] for t in targets},

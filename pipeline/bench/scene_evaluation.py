@@ -89,15 +89,6 @@ class Scene:
     surveillance: scorecard.Truth | None = None  # every truth row, what the scorecard reads (None: no scorecard)
 
 
-def surveillance_truth(truth: pa.Table, rows: np.ndarray) -> scorecard.Truth:
-    """The scorecard's truth (`scorecard.Truth`) of the `rows` (bool or indices) of a simulator's truth table
-    (`simulate.TRUTH_SCHEMA`): each aircraft's true position at every scan, in coverage or not."""
-    position = np.stack([truth.column(f"{axis}_ecef_m").to_numpy()[rows] for axis in "xyz"], axis=1)
-    return scorecard.Truth(truth.column("target_id").to_numpy()[rows].astype(np.int64),
-                           truth.column("time_unix_s").to_numpy()[rows], position,
-                           truth.column("in_coverage").to_numpy(zero_copy_only=False)[rows])
-
-
 def clipped(route: dict[str, np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
     """The aircraft's true ECEF position at any time, held at its route's ends outside it."""
     trajectory = simulate.trajectory_of(route)
@@ -127,7 +118,7 @@ def read_scenes(params: Params, scenes_dir: Path) -> list[Scene]:
                             truth_scan[mine][order], truth_id[mine][order],
                             {int(route["route_id"][0]): clipped(route) for route in aircraft},
                             dict(zip(roles["route_id"], roles["strategy"])),
-                            surveillance=surveillance_truth(truth, truth_scene == scene_id)))
+                            surveillance=evaluation.surveillance_truth(truth, truth_scene == scene_id)))
     return loaded
 
 
@@ -338,15 +329,6 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
 
 
 PAIRED = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches")  # the verdicts'
-CARD_COUNTS = ("confirmed_updates", "scored_updates", "targets", "targets_never_tracked", "confirmed_tracks",
-               "false_tracks", "track_swaps", "straight_updates", "manoeuvring_updates")  # the scorecard's counts
-
-
-def scene_per_draw(metrics: dict[str, float], draws: int) -> dict[str, float]:
-    """A run's metrics over `draws` draws of every scene with its counts as means per draw (`evaluation.per_draw`,
-    and the scorecard's counts, CARD_COUNTS), so that they stay those of one set of scenes."""
-    return {name: value / draws if name in CARD_COUNTS else value
-            for name, value in per_draw(metrics, draws).items()}
 
 
 def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list[SceneResult]]) -> dict:
@@ -357,7 +339,7 @@ def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list
     names = [name for name in run_metrics(first, 0) if name != SPEED]
     draws = len({scene.draw for scene in tracked})
     return intervals.run_intervals({run.name: results for run, results in units.items()},
-                                   lambda results: scene_per_draw(run_metrics(results, 0), draws), names,
+                                   lambda results: per_draw(run_metrics(results, 0), draws), names,
                                    PAIRED, chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
                                    [scene.scenario_id for scene in tracked])
 
@@ -387,6 +369,6 @@ def evaluate_all(evaluation: SceneEvaluation, workers: int, example: tuple[Run, 
         if len(parts[run]) == len(tracked):
             finished = parts.pop(run)
             units_by_run[run] = [finished[i] for i in range(len(tracked))]
-            results[run] = scene_per_draw(run_metrics(units_by_run[run], plots), len({scene.draw for scene in tracked}))
+            results[run] = per_draw(run_metrics(units_by_run[run], plots), len({scene.draw for scene in tracked}))
             log.info("evaluate_scenes %s: %s", run.name, ", ".join(f"{k} {v:.4g}" for k, v in results[run].items()))
     return {run: results[run] for run in evaluation.runs}, pictured, {run: units_by_run[run] for run in evaluation.runs}

@@ -26,6 +26,9 @@ TRACKER_METRICS = ("OSPA", "OSPA_p90", "MAE", "ROCA", "tracks_per_aircraft", "NO
 GOSPA_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "tracks_per_truth",
                  "track_purity")
 
+CARD_METRICS = (*scorecard.INDICATORS, *scorecard.COUNTS)  # the surveillance scorecard's, where a report has them
+SCORECARD_TITLE = "Surveillance scorecard"
+
 SCENE_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches", "fragmentation",
                  "tracks_per_truth", "track_purity", "plots_per_second")
 
@@ -248,24 +251,29 @@ def _numbers(values: Mapping[str, float | None]) -> dict[str, float]:
     return {name: float("nan") if value is None else value for name, value in values.items()}
 
 
+def scorecard_blocks(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None, material: str) -> list[str]:
+    """The surveillance scorecard of every run on `material` (words: "the scenes") with the reference figures it
+    passes, by run name, with the 95 % intervals where given; nothing for a report made before it."""
+    if not runs or not all("probability_of_update" in values for values in runs.values()):
+        return []
+    return [f"The surveillance scorecard on {material} (`pipeline/surveillance/scorecard.py`: EUROCAE ED-129C's "
+            "probability of update and ratio of long gaps, the ECAC guidelines' position error figures, velocity, "
+            f"false tracks, swaps, initiation time; counts per draw of {material}), best GOSPA first:",
+            peers_tables.material_table(runs, run_intervals),
+            f"Each run against the reference figures on {material}:",
+            peers_tables.references_table({name: scorecard.judged(_numbers(values)) for name, values in runs.items()})]
+
+
 def scenes_detail(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> list[str]:
     """The scenes' GOSPA missed and false parts by cause (`scene_evaluation.missed_causes`, `false_causes`) and the
-    surveillance scorecard of every run with the reference figures it passes, by run name, with the 95 %
-    intervals over the scenes where given; nothing for a report made before them."""
+    surveillance scorecard of every run with the reference figures it passes (`scorecard_blocks`), by run name,
+    with the 95 % intervals over the scenes where given; nothing for a report made before them."""
     blocks = []
     for intro, columns in ((peers_tables.MISSED_INTRO, peers_tables.MISSED_COLUMNS),
                            (peers_tables.FALSE_INTRO, peers_tables.FALSE_COLUMNS)):
         table = peers_tables.cause_table(runs, run_intervals, columns)
         blocks += [intro, table] if table else []
-    if runs and all("probability_of_update" in values for values in runs.values()):
-        blocks += ["The surveillance scorecard on the scenes (`pipeline/surveillance/scorecard.py`: EUROCAE ED-129C's "
-                   "probability of update and ratio of long gaps, the ECAC guidelines' position error figures, "
-                   "velocity, false tracks, swaps, initiation time; counts per set of scenes), best GOSPA first:",
-                   peers_tables.material_table(runs, run_intervals),
-                   "Each run against the reference figures on the scenes:",
-                   peers_tables.references_table({name: scorecard.judged(_numbers(values))
-                                                  for name, values in runs.items()})]
-    return blocks
+    return blocks + scorecard_blocks(runs, run_intervals, "the scenes")
 
 
 def holdout_table(holdout: dict) -> str:

@@ -53,6 +53,13 @@ from pipeline.geometry.asterix_units import NAUTICAL_MILE_M
 from pipeline.params import Scorecard
 
 
+INDICATORS = ("probability_of_update", "ratio_of_long_gaps", "position_error_mean_m", "position_error_sigma_m",
+              "position_rms_m", "along_track_rms_m", "across_track_rms_m", "along_track_mean_m",
+              "velocity_rms_straight_mps", "velocity_rms_manoeuvring_mps", "straight_within_0_25_nm",
+              "manoeuvring_within_1_nm", "tracks_per_aircraft", "extra_track_ratio", "false_update_ratio",
+              "initiation_mean_s", "initiation_p95_s")  # `combined`'s ratios, errors and times
+COUNTS = ("confirmed_updates", "scored_updates", "targets", "targets_never_tracked", "confirmed_tracks",
+          "false_tracks", "track_swaps", "straight_updates", "manoeuvring_updates")  # `combined`'s counts (sums)
 ROUNDING = 1e-9  # a gap of exactly long_gap_scans update intervals, to this relative rounding, is not long
 
 
@@ -265,10 +272,8 @@ class Parts:
 
 
 def parts(updates: TrackUpdates, truth: Truth, settings: Settings) -> Parts:
-    """The scorecard's parts of one recording (module docstring). Raises ValueError for a truth without a
-    target in coverage."""
-    if not truth.in_coverage.any():
-        raise ValueError("the truth has no target in coverage: nothing to score against")
+    """The scorecard's parts of one recording (module docstring). A recording with no target in coverage (a
+    bench route flown wholly outside the radar's coverage) adds only its confirmed tracks, all false."""
     confirmed = np.flatnonzero(updates.confirmed)
     confirmed = confirmed[np.argsort(updates.time_s[confirmed], kind="stable")]  # each track's updates in time order
     scored = TrackUpdates(updates.track_id[confirmed], updates.time_s[confirmed], updates.position[confirmed],
@@ -359,7 +364,10 @@ def combined(pieces: list[Parts]) -> dict[str, float]:
 
 
 def scorecard(updates: TrackUpdates, truth: Truth, settings: Settings) -> dict[str, float]:
-    """The indicators of one recording: `combined` of its `parts`."""
+    """The indicators of one recording: `combined` of its `parts`. Raises ValueError for a truth without a
+    target in coverage: nothing to score against."""
+    if not truth.in_coverage.any():
+        raise ValueError("the truth has no target in coverage: nothing to score against")
     return combined([parts(updates, truth, settings)])
 
 
