@@ -344,3 +344,15 @@ def test_the_warning_names_the_method_once_the_refused_share_is_reached(caplog, 
     assert ("track: method kalman_net: its learned gate refused 2 of the 4 plots (50.0 %) that lay within "
             "window_m = 4000 m" in caplog.text) == warned
     assert len(caplog.records) == warned
+
+
+@pytest.mark.parametrize("method, fallback, advice", [
+    ("lstm_update", False, "tracker.lstm_update.young_window_fallback widens its young tracks' gate"),
+    ("lstm_update", True, "even with tracker.lstm_update.young_window_fallback on: a classical method"),
+    ("kalman_net", False, "its gate cannot follow such targets: a classical method")])
+def test_the_warning_advises_what_is_left_to_try(caplog, method, fallback, advice):
+    """Case 29: the LSTM update's warning offers the young-track fallback only while it is off; once on, and
+    for the other learned gates, it names the methods that follow such targets."""
+    with caplog.at_level("WARNING", logger="pipeline"):
+        warn_refusals(method, 4000.0, RefusalCounts(in_window=4, refused=4), 0.5, fallback)
+    assert advice in caplog.text

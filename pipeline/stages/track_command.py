@@ -183,7 +183,8 @@ def _write_tracks(recording: streamed_recording.RecordingParts, made: dict, para
             _write_system_tracks(pa.concat_tables(held) if held else TRACK_SCHEMA.empty_table(), recording.radars,
                                  system_tracks)
         io.write_json(report, summary_path(out))
-    warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share)
+    warn_refusals(method, window_m, summary.refusals, params.tracker.refusal_warning_share,
+                  params.tracker.lstm_update.young_window_fallback)
     skipped = ", ".join(f"{count} {reason}" for reason, count in report["skipped"].items())
     seen = sum(1 for count in recording.plot_counts.values() if count)  # a radar whose every plot was skipped: none
     unseen = [str(radar_id) for radar_id, count in sorted(recording.plot_counts.items()) if not count]

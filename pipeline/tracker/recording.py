@@ -112,7 +112,8 @@ def track_recording(plots: Plots, method: str, window_m: float, params: Params, 
     parts = [part for _, part, _ in tracked_parts(((scenario_id, iter([scenario]))
                                                    for scenario_id, scenario in plots.scenarios()),
                                                   plots.radars, method, window_m, params, models_dir, refusals)]
-    warn_refusals(method, window_m, refusals, params.tracker.refusal_warning_share)
+    warn_refusals(method, window_m, refusals, params.tracker.refusal_warning_share,
+                  params.tracker.lstm_update.young_window_fallback)
     return pa.concat_tables(parts) if parts else TRACK_SCHEMA.empty_table()
 
 

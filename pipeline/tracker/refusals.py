@@ -74,12 +74,25 @@ class RefusalWatch:
         self.counts.refused += int(not np.isfinite(candidates.errors).any())
 
 
-def warn_refusals(method: str, window_m: float, counts: RefusalCounts, share: float) -> None:
+YOUNG_FALLBACK_METHOD = "lstm_update"  # the method whose young-track gate `young_window_fallback` widens
+
+
+def remedy(method: str, young_fallback: bool) -> str:
+    """What a user can do about a learned gate that keeps refusing plots: widen the LSTM update's young-track
+    gate where that is still off, else track such targets with a method whose gate is not learned."""
+    if method == YOUNG_FALLBACK_METHOD and not young_fallback:
+        return "tracker.lstm_update.young_window_fallback widens its young tracks' gate to the window"
+    told = " even with tracker.lstm_update.young_window_fallback on" if method == YOUNG_FALLBACK_METHOD else ""
+    return f"its gate cannot follow such targets{told}: a classical method (imm, imm_gnn) or kalman_net tracks them"
+
+
+def warn_refusals(method: str, window_m: float, counts: RefusalCounts, share: float,
+                  young_fallback: bool = False) -> None:
     """Warn (logger `pipeline`) when `method`'s learned gate refused at least `share` of the plots in
-    the window (`window_m`, m) of a track it scored."""
+    the window (`window_m`, m) of a track it scored, with the `remedy` that applies (`young_fallback`:
+    params' tracker.lstm_update.young_window_fallback)."""
     if counts.refused and counts.share >= share:
         log.warning("track: method %s: its learned gate refused %d of the %d plots (%.1f %%) that lay within "
                     "window_m = %g m of a track it scored, and each started a track of its own: plots unlike "
-                    "its training (a target faster than any it saw?); tracker.lstm_update.young_window_fallback "
-                    "widens a learned young-track gate (lstm_update's) to the window", method, counts.refused,
-                    counts.in_window, 100.0 * counts.share, window_m)
+                    "its training (a target faster than any it saw?); %s", method, counts.refused,
+                    counts.in_window, 100.0 * counts.share, window_m, remedy(method, young_fallback))
