@@ -151,6 +151,13 @@ def test_settings_and_truth_out_of_bounds_are_named() -> None:
         scorecard.scorecard(updates_of(1, truth, np.arange(3)), blind, SETTINGS)
 
 
+def test_the_declared_names_are_those_combined_gives() -> None:
+    """INDICATORS and COUNTS, which the bench divides per draw and the comparison copies, name every figure."""
+    truth = straight_truth(0, TIMES)
+    card = scorecard.combined([scorecard.parts(updates_of(1, truth, np.arange(len(TIMES))), truth, SETTINGS)])
+    assert sorted(card) == sorted(scorecard.INDICATORS + scorecard.COUNTS)
+
+
 def test_a_recording_without_a_target_in_coverage_adds_its_tracks_as_false_and_no_time() -> None:
     """A bench route flown wholly outside coverage: a confirmed track on clutter (50 km from the aircraft) counts
     as false, the recording adds no time to the probability of update, and pooled with a covered recording it

@@ -85,6 +85,18 @@ def surveillance_truth(truth: pa.Table, rows: np.ndarray) -> scorecard.Truth:
                            truth.column("in_coverage").to_numpy(zero_copy_only=False)[rows])
 
 
+def card_parts(params: Params, updates: dict[str, np.ndarray], confirmed: np.ndarray, truth: scorecard.Truth,
+               update_interval_s: float | None = None) -> scorecard.Parts:
+    """The scorecard's parts (`scorecard.parts`, params' `scorecard`) of one unit's updates (an update table's
+    track ids, times, positions, and `velocity` where recorded), those `confirmed` (U,) bool scored, against
+    `truth`; the update interval `update_interval_s`, default params' radar's scan period."""
+    interval = update_interval_s if update_interval_s is not None else 60.0 / params.radar.rotation_rpm
+    velocity = updates.get("velocity", np.full((len(confirmed), 3), np.nan))
+    return scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
+                                                  velocity, confirmed),
+                           truth, scorecard.Settings.from_params(interval, params.scorecard))
+
+
 def load_scenarios(plots: Plots, plot_scans: dict[int, int], route_table: pa.Table, truth_table: pa.Table
                    ) -> list[Scenario]:
     """The scenarios of a split: its plots (`plot_table`), each plot's scan by plot id, its routes and truth."""
@@ -249,11 +261,8 @@ def evaluate_unit(evaluation: Evaluation, run: Run, index: int) -> UnitResult:
                           params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.zeros(int(np.isin(scans, scenario.coverage_scans).any()), dtype=np.int64)
     pictured = run.name == params.evaluate.example_run and index < params.evaluate.example_scenarios
-    card = None if scenario.surveillance is None else scorecard.parts(
-        scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"], positions(updates),
-                               updates.get("velocity", np.full((len(updates["track_id"]), 3), np.nan)),
-                               confirmed_associations(updates, management)),
-        scenario.surveillance, scorecard.Settings.from_params(60.0 / params.radar.rotation_rpm, params.scorecard))
+    card = None if scenario.surveillance is None else card_parts(
+        params, updates, confirmed_associations(updates, management), scenario.surveillance)
     return UnitResult(route_counts(updates, scenario.is_target, scenario.truth, management), scan_ospa,
                       gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order),
                       int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),

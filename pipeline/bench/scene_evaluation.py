@@ -64,7 +64,7 @@ from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
-from pipeline.tracker.updates import confirmed_associations, positions
+from pipeline.tracker.updates import confirmed_associations
 
 log = logging.getLogger("pipeline")
 
@@ -223,13 +223,8 @@ def scene_result(params: Params, scene: Scene, updates: dict[str, np.ndarray], c
     scored = scene_gospa(scene, estimates, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
     truths = np.unique(scene.truth_id)
     shares = gospa.shares_in_metres(scored.parts, params.evaluate.gospa_order)
-    card = None
-    if scene.surveillance is not None:
-        interval = update_interval_s if update_interval_s is not None else 60.0 / params.radar.rotation_rpm
-        velocity = updates.get("velocity", np.full((len(confirmed), 3), np.nan))
-        card = scorecard.parts(scorecard.TrackUpdates(updates["track_id"], updates["time_unix_s"],
-                                                      positions(updates), velocity, confirmed),
-                               scene.surveillance, scorecard.Settings.from_params(interval, params.scorecard))
+    card = None if scene.surveillance is None else evaluation.card_parts(params, updates, confirmed,
+                                                                         scene.surveillance, update_interval_s)
     return SceneResult(shares, int(gospa.track_switches(scored.truth, scored.scan, scored.track, truths).sum()),
                        gospa.tracks_per_truth(scored.truth, scored.track, truths),
                        gospa.track_purity(scored.truth, scored.track), seconds,

@@ -42,10 +42,10 @@ from pipeline.learning.scaling import STATE_FEATURES
 from pipeline.params import Params
 from pipeline.reports import figures, fusion_tables, peers_tables, site_report
 from pipeline.reports.comparison_tables import (
+    CARD_METRICS,
     CONTINUITY_INTRO,
     FILTER_LABELS,
     GOSPA_INTRO,
-    CARD_METRICS,
     GOSPA_METRICS,
     GRADIENT_LABELS,
     SCALED_INTRO,

@@ -273,7 +273,7 @@ class Parts:
 
 def parts(updates: TrackUpdates, truth: Truth, settings: Settings) -> Parts:
     """The scorecard's parts of one recording (module docstring). A recording with no target in coverage (a
-    bench route flown wholly outside the radar's coverage) adds only its confirmed tracks, all false."""
+    bench route flown wholly outside the radar's coverage) adds its confirmed tracks and their errors, no time."""
     confirmed = np.flatnonzero(updates.confirmed)
     confirmed = confirmed[np.argsort(updates.time_s[confirmed], kind="stable")]  # each track's updates in time order
     scored = TrackUpdates(updates.track_id[confirmed], updates.time_s[confirmed], updates.position[confirmed],
