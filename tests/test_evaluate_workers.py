@@ -96,6 +96,8 @@ def test_one_and_two_workers_write_the_same_reports(inputs, tmp_path, monkeypatc
     assert set(metrics["runs"]) == {"via_4000", "mia_4000", "ae_5000", "radius_4000", "kalman_cv_4000",
                                     "imm_gnn_4000", "imm_gnn_4000_m_of_n", "plots_reference", "oracle_reference"}
     assert all(run["NOPA"] > 0 for run in metrics["runs"].values())
+    bounds = metrics["pcrb_horizontal_rms_m"]  # the limit beside the scorecard's position RMS, by tuned model
+    assert set(bounds) == {"cv", "ca"} and all(0.0 < value < 1e4 for value in bounds.values())
 
 
 def test_a_cluster_of_workers_apart_writes_the_same_reports(inputs, tmp_path, monkeypatch):

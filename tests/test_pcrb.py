@@ -73,3 +73,29 @@ def test_times_not_increasing_and_factors_outside_0_1_are_refused() -> None:
     with pytest.raises(ValueError, match="outside"):
         pcrb.information_recursion(np.array([0.0, 6.0, 12.0]), covariance, np.array([1.0, 1.2, 1.0]), "cv", 1.0,
                                    100.0, 0.0)
+
+
+def test_the_benchs_bound_pools_every_in_coverage_scan_of_every_target_and_item() -> None:
+    """`horizontal_rms`, the figure beside a scorecard's position RMS: the RMS of `route_bounds` over the
+    in-coverage scans of each target of each material item; a target never in coverage adds nothing, and a
+    material without one gives NaN."""
+    from pipeline.filters.classical_filters import FilterSettings
+    from pipeline.geometry import geodesy
+    from pipeline.surveillance.scorecard import Truth
+    from tests import tracker_fixtures as tf
+
+    params = tf.make_params()
+    settings = FilterSettings("cv", (3.0,), 150.0, 0.0, 0.0, 1.0)
+    site = geodesy.radar_site_ecef(params.radar)
+    times = SCAN_S * np.arange(12)
+    first = site + np.array([30e3, 0.0, 0.0]) + np.outer(times, [0.0, 150.0, 0.0])
+    second = site + np.array([0.0, 50e3, 0.0]) + np.outer(times, [150.0, 0.0, 0.0])
+    truth = Truth(np.repeat([1, 2, 3], 12), np.tile(times, 3), np.concatenate([first, second, second]),
+                  np.concatenate([np.ones(24, bool), np.zeros(12, bool)]))
+    detection = np.full(36, 0.9)
+    alone = [pcrb.route_bounds(times, path, detection[:12], params.radar, settings)[1] for path in (first, second)]
+    expected = np.sqrt(np.mean(np.concatenate(alone) ** 2))
+    assert pcrb.horizontal_rms([(truth, detection, params.radar)], settings) == pytest.approx(expected, rel=1e-12)
+    assert pcrb.horizontal_rms([(truth, detection, params.radar)] * 2, settings) == pytest.approx(expected, rel=1e-12)
+    nowhere = Truth(truth.target_id, truth.time_s, truth.position, np.zeros(36, bool))
+    assert np.isnan(pcrb.horizontal_rms([(nowhere, detection, params.radar)], settings))

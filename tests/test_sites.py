@@ -25,6 +25,7 @@ from pipeline.params import Site
 from pipeline.reports import comparison_tables, site_report
 from pipeline.simulation import routes
 from pipeline.stages.evaluate_sites_stage import training_runs
+from pipeline.surveillance import scorecard
 from tests import tracker_fixtures as tf
 from tests.project import environment
 
@@ -117,6 +118,8 @@ def test_stage_on_the_tiny_pipeline(tiny_pipeline: Path, tmp_path: Path):
     assert [site["name"] for site in alone["sites"]] == ["home", "south_dateline"]
     home, away = alone["sites"]
     assert home["runs"] == alone["training"]["runs"] and home["plots"] == alone["training"]["plots"]
+    assert home["pcrb_horizontal_rms_m"] == alone["training"]["pcrb_horizontal_rms_m"]  # the bound where evaluate's is
+    assert set(away["pcrb_horizontal_rms_m"]) == {"cv", "ca"}
     assert sorted(away["runs"]) == sorted(alone["training"]["runs"])
     assert all("plots_per_second" not in values for values in away["runs"].values())
     comparison = site_report.site_comparison(alone)
@@ -164,3 +167,16 @@ def test_no_other_sites_no_section():
                 "runs": {"via_4000": {"MAE": 200.0}}}
     comparison = site_report.site_comparison({"training": training, "sites": []})
     assert comparison_tables.sites_section(comparison, tf.run_records({"via_4000": {"OSPA": 1.0}})) == []
+
+
+def test_every_other_site_gets_its_scorecard_with_the_bound_there():
+    """The comparison's radar sites section: a scorecard table per site but the training one, with the PCRB's
+    horizontal RMS at that site beside it; runs in the order given, the ones not scored there left out."""
+    card = {name: 1.0 for name in (*scorecard.INDICATORS, *scorecard.COUNTS)}
+    runs = {"via_4000": {**card, "GOSPA": 300.0}, "oracle_reference": {**card, "GOSPA": 200.0}}
+    report = {"split": "test", "training": {"name": "training", "runs": runs},
+              "sites": [{"name": "tromso", "runs": runs, "pcrb_horizontal_rms_m": {"cv": 281.0, "ca": 293.0}}]}
+    blocks = comparison_tables.site_scorecards(report, ["oracle_reference", "kalman_cv_4000"])
+    assert blocks[0].startswith("The surveillance scorecard on the test routes at site tromso")
+    assert "| oracle_reference |" in blocks[1] and "via_4000" not in blocks[1]
+    assert "281 m under the tuned CV model, 293 m under the tuned CA model" in blocks[2]

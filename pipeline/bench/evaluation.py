@@ -42,12 +42,13 @@ from pipeline import io
 from pipeline.bench import engine, gospa, intervals, ospa
 from pipeline.bench.runs import Run, evaluated
 from pipeline.bench.tracker_metrics import RouteCounts, confirmed_nees, route_counts, summarise
+from pipeline.filters import classical_filters
 from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import NO_TARGET, Plots
 from pipeline.simulation import routes, simulate
-from pipeline.surveillance import scorecard
+from pipeline.surveillance import pcrb, scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.management import TrackManagement
@@ -83,6 +84,21 @@ def surveillance_truth(truth: pa.Table, rows: np.ndarray) -> scorecard.Truth:
     return scorecard.Truth(truth.column("target_id").to_numpy()[rows].astype(np.int64),
                            truth.column("time_unix_s").to_numpy()[rows], position,
                            truth.column("in_coverage").to_numpy(zero_copy_only=False)[rows])
+
+
+def split_bounds(params: Params, simulated_dir: Path, models_dir: Path) -> dict[str, float]:
+    """The limit beside the scorecard's position RMS on the evaluated split as the simulate stage (or a site)
+    wrote it under `simulated_dir`: the PCRB's horizontal RMS (m) over every in-coverage scan of its routes
+    (`pcrb.horizontal_rms`: params' radar, the simulator's detection probabilities) under each tuned model of
+    `pcrb.MODELS` (`models_dir/kalman_tuned.json`), by model. The further draws have the same routes and
+    detection probabilities, so the simulate stage's draw gives the bound of them all."""
+    truth = io.read_parquet(simulated_dir / params.evaluate.split / "truth.parquet", simulate.TRUTH_SCHEMA)
+    scenario = truth.column("scenario_id").to_numpy()
+    detection = truth.column("detection_probability").to_numpy()
+    items = [(surveillance_truth(truth, scenario == s), detection[scenario == s], params.radar)
+             for s in np.unique(scenario).tolist()]
+    tuned = classical_filters.load_settings(models_dir / "kalman_tuned.json")
+    return {kind: pcrb.horizontal_rms(items, tuned[kind]) for kind in pcrb.MODELS}
 
 
 def card_parts(params: Params, updates: dict[str, np.ndarray], confirmed: np.ndarray, truth: scorecard.Truth,

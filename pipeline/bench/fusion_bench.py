@@ -28,8 +28,10 @@ from pipeline.bench import engine, fusion_bias_sweep, intervals, radar_fusion
 from pipeline.params import Params
 from pipeline.progress import progress_logger
 from pipeline.simulation import scenes
+from pipeline.surveillance import scorecard
 
 log = logging.getLogger("pipeline")
+CARD_PAIRED = ("position_rms_m", "probability_of_update", "ratio_of_long_gaps")  # the scorecard's paired differences
 
 
 class FusionBench(NamedTuple):
@@ -83,17 +85,21 @@ def _accuracy(units: list[tuple[int, int]]) -> dict[str, float]:
 
 def fusion_intervals(params: Params, scored: list[SceneResult]) -> dict:
     """reports/fusion_intervals.json: the `evaluate.confidence` intervals (`evaluate.bootstrap_replicates`
-    resamples of the scenes, seed `evaluate.bootstrap_seed`) of every picture's GOSPA and every method's
-    association accuracy, and of their paired differences (`intervals.run_intervals`), from every scene's
-    result in scene order: {"pictures": ..., "association": ...}."""
+    resamples of the scenes, seed `evaluate.bootstrap_seed`) of every picture's GOSPA, its scorecard's
+    indicators and every method's association accuracy, and of their paired differences (`intervals.run_intervals`;
+    of the scorecard, CARD_PAIRED's), from every scene's result in scene order: {"pictures": ..., "association":
+    ..., "scorecard": ...}."""
     chosen = params.evaluate
     pictures = {name: [(result.pictures[name].gospa_sum, int(result.counts["times"])) for result in scored]
                 for name in scored[0].pictures}
     methods = {method: [(int(result.counts[f"pairs_{method}"][0]), int(result.counts["oracle_pairs"]))
                         for result in scored] for method in params.fusion.methods}
+    cards = {name: [result.pictures[name].card for result in scored] for name in scored[0].pictures}
     settings = (chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed)
     return {"pictures": intervals.run_intervals(pictures, _mean_gospa, ["GOSPA"], ["GOSPA"], *settings),
-            "association": intervals.run_intervals(methods, _accuracy, ["accuracy"], ["accuracy"], *settings)}
+            "association": intervals.run_intervals(methods, _accuracy, ["accuracy"], ["accuracy"], *settings),
+            "scorecard": intervals.run_intervals(cards, scorecard.combined, scorecard.INDICATORS, CARD_PAIRED,
+                                                 *settings)}
 
 
 def fusion_reports(params: Params, models_dir: Path, workers: int) -> tuple[dict, dict]:

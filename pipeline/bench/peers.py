@@ -55,7 +55,7 @@ from pipeline.peers import stone_soup
 from pipeline.progress import progress_logger
 from pipeline.recordings import opensky_states, plot_table
 from pipeline.simulation import real_traffic, routes, simulate
-from pipeline.surveillance import pcrb, scorecard
+from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
 from pipeline.tracker.run import track
@@ -238,23 +238,6 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
     return PeerBench(params, (params, simulated_dir, routes_dir, models_dir, root), recordings,
                      {peer.name: _tracker(params, models, peer, cv) for peer in peers}, peers,
                      classical_filters.load_settings(models_dir / "kalman_tuned.json"))
-
-
-def bound_rms(recordings: list[Recording], settings: classical_filters.FilterSettings) -> float:
-    """The limit beside the runs' position RMS: the RMS, over every in-coverage scan of every target of the
-    `recordings`, of the PCRB's horizontal position bound under a tuned filter's model (`settings`; `pcrb.
-    route_bounds`, its module says what the bound means), in metres. The runs' RMS is over their confirmed updates
-    alone, so a run that holds the hard scans less often may come nearer the bound than it is."""
-    squares = []
-    for recording in recordings:
-        truth = recording.truth
-        for target in np.unique(truth.target_id[truth.in_coverage]).tolist():
-            rows = np.flatnonzero((truth.target_id == target) & truth.in_coverage)
-            rows = rows[np.argsort(truth.time_s[rows], kind="stable")]
-            _, horizontal = pcrb.route_bounds(truth.time_s[rows], truth.position[rows],
-                                              recording.detection_probability[rows], recording.radar, settings)
-            squares.append(horizontal ** 2)
-    return float(np.sqrt(np.concatenate(squares).mean())) if squares else float("nan")
 
 
 def evaluate_unit(bench: PeerBench, name: str, index: int) -> SceneResult:

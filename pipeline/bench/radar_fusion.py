@@ -45,6 +45,7 @@ from pipeline.geometry import geodesy
 from pipeline.params import FusionRadar, Params, Radar
 from pipeline.recordings.plot_table import NO_TARGET, PLOT_INPUT_SCHEMA, plot_table
 from pipeline.simulation import scenes, simulate
+from pipeline.surveillance import scorecard
 from pipeline.tracker.recording import track_recording
 
 log = logging.getLogger("pipeline")
@@ -113,22 +114,27 @@ def truth_positions(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray],
 
 
 class PictureScore:
-    """A picture's GOSPA and its shares summed over common times and the (time, truth, identity) pairs its
-    assignments made, for the track switches and tracks per truth."""
+    """A picture's GOSPA and its shares summed over common times, the (time, truth, identity) pairs its
+    assignments made, for the track switches and tracks per truth, and its rows at every common time for the
+    surveillance scorecard (`card`)."""
 
     def __init__(self) -> None:
         self.gospa_sum = 0.0
         self.shares_sum = np.zeros(len(gospa.PARTS))
         self.assigned: list[np.ndarray] = []
+        self.rows: list[tuple[np.ndarray, float, np.ndarray]] = []  # (identities (K,), time, ENU states (K, 6))
+        self.card: scorecard.Parts | None = None
 
     def add(self, time_index: int, truth_ids: np.ndarray, truth: np.ndarray, identity: np.ndarray,
-            estimates: np.ndarray, params: Params) -> None:
-        """One common time: truths (T,) at (T, 3), the picture's identities (K,) at (K, 3)."""
-        distances = np.linalg.norm(truth[:, None] - estimates[None], axis=-1)
+            states: np.ndarray, time: float, params: Params) -> None:
+        """One common time `time` (Unix s): truths (T,) at (T, 3), the picture's identities (K,) with their ENU
+        states (K, 6) (position m, velocity m/s)."""
+        distances = np.linalg.norm(truth[:, None] - states[None, :, :3], axis=-1)
         parts, rows, columns = gospa.gospa_parts(distances, params.evaluate.gospa_cutoff_m, params.evaluate.gospa_order)
         self.gospa_sum += float(parts.sum() ** (1.0 / params.evaluate.gospa_order))
         self.shares_sum += gospa.shares_in_metres(parts[None], params.evaluate.gospa_order)[0]
         self.assigned.append(np.column_stack([np.full(len(rows), time_index), truth_ids[rows], identity[columns]]))
+        self.rows.append((identity, time, states[:, :6]))
 
     def continuity(self) -> np.ndarray:
         """[track switches summed over truths, distinct (truth, track) pairs, truths ever assigned]."""
@@ -137,6 +143,41 @@ class PictureScore:
         switches = gospa.track_switches(assigned[:, 1], assigned[:, 0], assigned[:, 2], truths)
         return np.array([switches.sum(), gospa.tracks_per_truth(assigned[:, 1], assigned[:, 2], truths).sum(),
                          len(truths)], dtype=np.int64)
+
+    def score_card(self, truth: scorecard.Truth, frame: Frame, params: Params) -> None:
+        """The scorecard's parts (`scorecard.parts`, params' `scorecard`) of the picture's rows, every one a
+        confirmed update of its identity, against the scene's `truth` (`scene_truth`), the update interval
+        `associate.step_s` (the picture is only seen at common times); the rows' memory is released."""
+        identities = np.concatenate([ids for ids, _, _ in self.rows]) if self.rows else np.zeros(0, dtype=np.int64)
+        times = np.concatenate([np.full(len(ids), time) for ids, time, _ in self.rows]) if self.rows else np.zeros(0)
+        states = np.concatenate([state for _, _, state in self.rows]) if self.rows else np.zeros((0, 6))
+        updates = scorecard.TrackUpdates(identities, times, frame.origin + states[:, :3] @ frame.rotation,
+                                         states[:, 3:6] @ frame.rotation, np.ones(len(identities), dtype=bool))
+        self.card = scorecard.parts(updates, truth, scorecard.Settings.from_params(params.associate.step_s,
+                                                                                   params.scorecard))
+        self.rows = []
+
+
+def scene_truth(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray], times: list[float], max_age_s: float
+                ) -> scorecard.Truth:
+    """The scorecard's truth of a scene at its common `times`: every aircraft whose route spans a time, at its
+    ECEF position, in coverage where some radar detected it within `max_age_s` before (GOSPA's truth,
+    `truth_positions`)."""
+    target, plot_time = detections
+    ids, at, positions, covered = [], [], [], []
+    for route in simulate.routes_by_id(routes):
+        aircraft = int(route["route_id"][0])
+        spanned = np.array([t for t in times if route["time_unix_s"][0] <= t <= route["time_unix_s"][-1]])
+        if not len(spanned):
+            continue
+        seen = plot_time[target == aircraft]
+        ids.append(np.full(len(spanned), aircraft, dtype=np.int64))
+        at.append(spanned)
+        positions.append(np.asarray(simulate.trajectory_of(route)(spanned)).reshape(-1, 3))
+        covered.append(np.array([bool(np.any((seen <= t) & (seen >= t - max_age_s))) for t in spanned.tolist()]))
+    if not ids:
+        return scorecard.Truth(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, dtype=bool))
+    return scorecard.Truth(np.concatenate(ids), np.concatenate(at), np.concatenate(positions), np.concatenate(covered))
 
 
 def _pair_counts(found: np.ndarray, oracle: np.ndarray) -> np.ndarray:
@@ -191,15 +232,18 @@ def scene_scores(params: Params, scene_id: int, routes: pa.Table, tracked: list[
     for index, snapshot in enumerate(snapshots):
         truth_ids, truth = truth_positions(routes, detected, snapshot.time, params.associate.max_age_s, frame)
         for name, ids, states in zip(radar_names, snapshot.ids, snapshot.states):
-            pictures[name].add(index, truth_ids, truth, ids, states[:, :3], params)
+            pictures[name].add(index, truth_ids, truth, ids, states, snapshot.time, params)
         oracle = decisions[ORACLE][index].pairs
         for method, made in decisions.items():
             _, ids, states, _, _ = table_association.picture(snapshot, made[index], params.associate.fusion_criterion)
             system_numbers = numbering[method].number(snapshot.scenario_id, ids)
-            pictures[f"fused_{method}"].add(index, truth_ids, truth, system_numbers, states[:, :3], params)
+            pictures[f"fused_{method}"].add(index, truth_ids, truth, system_numbers, states, snapshot.time, params)
             if method != ORACLE:
                 counts[f"pairs_{method}"] += _pair_counts(made[index].pairs, oracle)
         counts["oracle_pairs"] += len(oracle)
+    truth = scene_truth(routes, detected, [snapshot.time for snapshot in snapshots], params.associate.max_age_s)
+    for score in pictures.values():
+        score.score_card(truth, frame, params)
     log.info("fusion: scene %d, %d common times, %d oracle pairs", scene_id, len(snapshots),
              int(counts["oracle_pairs"]))
     return pictures, counts
@@ -209,7 +253,8 @@ def fusion_report(params: Params, scored: list[tuple[dict[str, PictureScore], di
     """reports/fusion.json from every scene's `scene_scores`, in scene order: per picture the mean GOSPA (m) per
     common time and its localisation, missed and false shares (m), the track switches (summed over scenes) and
     tracks per truth (mean over the truths of every scene); each fused picture's GOSPA relative to the better
-    radar's; per method association accuracy, false and missed pairs against the oracle's."""
+    radar's; per method association accuracy, false and missed pairs against the oracle's; per picture the
+    surveillance scorecard (`scorecard.combined` of its scenes' parts, `PictureScore.score_card`)."""
     gospa_sums: dict[str, float] = {}
     shares: dict[str, np.ndarray] = {}
     continuity: dict[str, np.ndarray] = {}
@@ -237,4 +282,6 @@ def fusion_report(params: Params, scored: list[tuple[dict[str, PictureScore], di
                                  for name in sorted(continuity)},
             "fused_gospa_vs_better_radar": {name: value / better for name, value in mean_gospa.items()
                                             if name.startswith("fused_")},
-            "association": association}
+            "association": association,
+            "scorecard": {name: scorecard.combined([pictures[name].card for pictures, _ in scored])
+                          for name in sorted(gospa_sums)}}

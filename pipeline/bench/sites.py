@@ -55,12 +55,15 @@ def without_speeds(runs: dict[str, dict]) -> dict[str, dict]:
     return {name: {k: v for k, v in values.items() if k != evaluation.SPEED} for name, values in runs.items()}
 
 
-def site_entry(name: str, latitude_deg: float, longitude_deg: float, height_m: float, runs: dict[str, dict]) -> dict:
-    """One site's part of the report: where it is, its plot counts and every run's metrics
-    (as `reports/tracker_metrics.json` has them, without the speeds)."""
+def site_entry(name: str, latitude_deg: float, longitude_deg: float, height_m: float, runs: dict[str, dict],
+               bounds: dict[str, float]) -> dict:
+    """One site's part of the report: where it is, its plot counts, every run's metrics (as
+    `reports/tracker_metrics.json` has them, without the speeds) and the PCRB's horizontal RMS there by model
+    (`evaluation.split_bounds`)."""
     first = next(iter(runs.values()))
     return {"name": name, "latitude_deg": latitude_deg, "longitude_deg": longitude_deg, "height_m": height_m,
-            "plots": {"target": first["target_plots"], "false": first["false_plots"]}, "runs": without_speeds(runs)}
+            "plots": {"target": first["target_plots"], "false": first["false_plots"]}, "runs": without_speeds(runs),
+            "pcrb_horizontal_rms_m": bounds}
 
 
 def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
@@ -72,13 +75,16 @@ def evaluate_site(params: Params, site: Site, models_dir: Path) -> dict:
         place_split(moved, folder, label)
         prepared = evaluation.prepare(moved, folder / "simulated", folder / "routes", models_dir)
         runs, *_ = evaluation.evaluate_all(prepared, params.workers, label)
-    return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, by_name(runs))
+        bounds = evaluation.split_bounds(moved, folder / "simulated", models_dir)
+    return site_entry(site.name, site.latitude_deg, site.longitude_deg, site.height_m, by_name(runs), bounds)
 
 
-def site_metrics(params: Params, training_runs: dict[str, dict], models_dir: Path) -> dict:
-    """The report: the training site's runs (the `evaluate` stage's, `training_runs`) and each of
-    `evaluate.sites` in params order."""
+def site_metrics(params: Params, training_runs: dict[str, dict], training_bounds: dict[str, float],
+                 models_dir: Path) -> dict:
+    """The report: the training site's runs and bounds (the `evaluate` stage's, `training_runs` and
+    `training_bounds`) and each of `evaluate.sites` in params order."""
     radar = params.radar
     return {"split": params.evaluate.split,
-            "training": site_entry("training", radar.latitude_deg, radar.longitude_deg, radar.height_m, training_runs),
+            "training": site_entry("training", radar.latitude_deg, radar.longitude_deg, radar.height_m, training_runs,
+                                   training_bounds),
             "sites": [evaluate_site(params, site, models_dir) for site in params.evaluate.sites]}

@@ -123,14 +123,16 @@ def by_ospa(runs: Mapping[Run, dict]) -> list[Run]:
 
 
 
-def sites_section(sites: dict, runs: Mapping[Run, dict]) -> list[str]:
+def sites_section(sites: dict, runs: Mapping[Run, dict], report: dict | None = None) -> list[str]:
     """The verdict on the radar sites and the table of the runs scored there (those of `runs`
-    that `sites` has, best OSPA first); nothing when there are no sites besides the training one."""
+    that `sites` has, best OSPA first), and with the sites' report (`reports/site_metrics.json`) their scorecard
+    at every site (`site_scorecards`); nothing when there are no sites besides the training one."""
     if len(sites["sites"]) < 2:
         return []
     scored = [run for run in by_ospa(runs) if run.name in sites["runs"]]  # evaluate.site_runs and the references
     neural = [run.name for run in scored if run.family == registry.NEURAL]
-    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, [run.name for run in scored])]
+    return [site_report.site_sentence(sites, neural), site_report.site_table(sites, [run.name for run in scored]),
+            *site_scorecards(report or {}, [run.name for run in scored])]
 
 
 
@@ -251,17 +253,31 @@ def _numbers(values: Mapping[str, float | None]) -> dict[str, float]:
     return {name: float("nan") if value is None else value for name, value in values.items()}
 
 
-def scorecard_blocks(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None, material: str) -> list[str]:
+def scorecard_blocks(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None, material: str,
+                     bounds: Mapping[str, float] | None = None) -> list[str]:
     """The surveillance scorecard of every run on `material` (words: "the scenes") with the reference figures it
-    passes, by run name, with the 95 % intervals where given; nothing for a report made before it."""
+    passes, by run name, with the 95 % intervals where given and the PCRB's horizontal RMS by model (`bounds`,
+    `peers_tables.bound_line`) where given; nothing for a report made before it."""
     if not runs or not all("probability_of_update" in values for values in runs.values()):
         return []
     return [f"The surveillance scorecard on {material} (`pipeline/surveillance/scorecard.py`: EUROCAE ED-129C's "
             "probability of update and ratio of long gaps, the ECAC guidelines' position error figures, velocity, "
             f"false tracks, swaps, initiation time; counts per draw of {material}), best GOSPA first:",
             peers_tables.material_table(runs, run_intervals),
+            *peers_tables.bound_line({"pcrb_horizontal_rms_m": bounds}),
             f"Each run against the reference figures on {material}:",
             peers_tables.references_table({name: scorecard.judged(_numbers(values)) for name, values in runs.items()})]
+
+
+def site_scorecards(report: dict, order: list[str]) -> list[str]:
+    """The scorecard of the runs in `order` at each radar site but the training one (`reports/site_metrics.json`
+    as `evaluate_sites` writes it), with the bound there; nothing for a report made before them."""
+    blocks = []
+    for site in report.get("sites", []):
+        runs = {name: site["runs"][name] for name in order if name in site["runs"]}
+        blocks += scorecard_blocks(runs, None, f"the {report['split']} routes at site {site['name']}",
+                                   site.get("pcrb_horizontal_rms_m"))
+    return blocks
 
 
 def scenes_detail(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None) -> list[str]:

@@ -9,9 +9,15 @@ from __future__ import annotations
 
 import math
 
+from pipeline.reports import comparison_tables
 from pipeline.reports.peers_tables import as_floats
 
 TITLE = "Two radars: track-to-track association and the fused picture"
+SCORECARD_MATERIAL = "the two-radar scenes"
+SCORECARD_NOTE = ("Each picture as a surveillance tracker's output: seen at the common times (`associate.step_s` apart, "
+                  "the update interval its gaps are counted in), against every aircraft some radar detected within "
+                  "`associate.max_age_s` (`pipeline/bench/radar_fusion.py`); a fused picture is held against the "
+                  "multi-radar figures, a radar alone against the single-radar ones.")
 PICTURE_LABELS = {"radar_1": "radar 1 alone", "radar_2": "radar 2 alone", "fused_oracle": "fused, oracle pairs"}
 
 
@@ -118,14 +124,17 @@ def bias_table(sweep: dict) -> str:
 
 
 def fusion_section(fusion: dict, figure_path: str, spread: dict | None = None) -> list[str]:
-    """The section's paragraphs: intro, the verdicts, the pictures, the association, and the bias sweep with its
-    figure at `figure_path` (relative to the markdown file); reports without the sweep have no bias part, without
-    intervals (`spread`, reports/fusion_intervals.json) no verdicts nor interval columns."""
+    """The section's paragraphs: intro, the verdicts, the pictures, the association, the pictures' scorecard
+    (`picture_runs`), and the bias sweep with its figure at `figure_path` (relative to the markdown file); reports
+    without the sweep have no bias part, without the scorecard no scorecard, without intervals (`spread`,
+    reports/fusion_intervals.json) no verdicts nor interval columns."""
     told = verdicts(fusion, spread)
     parts = [intro(fusion), *(["\n".join(told)] if told else []), picture_table(fusion, spread),
              "Association in these scenes against the oracle's pairs, summed over common times"
              + (" (intervals: resampling the scenes):" if spread else ":"),
              association_table(fusion, spread)]
+    card = comparison_tables.scorecard_blocks(picture_runs(fusion), picture_intervals(spread), SCORECARD_MATERIAL)
+    parts += [SCORECARD_NOTE, *card] if card else []
     sweep = fusion.get("bias_sweep")
     if sweep:
         parts += [f"Association against radar 2's registration bias in our scenes ({sweep['scenes']} of them; radar "
@@ -135,3 +144,20 @@ def fusion_section(fusion: dict, figure_path: str, spread: dict | None = None) -
                   "at every bias; the seed's own setting is in `reports/association.json`):",
                   bias_table(sweep), f"![Association accuracy, false and missed pairs against the bias]({figure_path})"]
     return parts
+
+
+def picture_runs(fusion: dict) -> dict[str, dict]:
+    """Each picture's surveillance scorecard with its GOSPA and missed and false parts, by label (the columns
+    `peers_tables.material_table` reads); none in a report made before it."""
+    cards = fusion.get("scorecard", {})
+    return {_label(name): {**card, "GOSPA": fusion["gospa_m"][name],
+                           **{f"GOSPA_{part}": fusion["gospa_shares_m"][name][part] for part in ("missed", "false")}}
+            for name, card in cards.items()}
+
+
+def picture_intervals(spread: dict | None) -> dict[str, dict] | None:
+    """Each picture's intervals of its GOSPA and scorecard (reports/fusion_intervals.json), by label."""
+    if not spread or "scorecard" not in spread:
+        return None
+    return {_label(name): {**spread["pictures"]["runs"].get(name, {}), **values}
+            for name, values in spread["scorecard"]["runs"].items()}

@@ -53,14 +53,16 @@ def stone_soup_fastest(runs: Mapping[str, dict], families: Mapping[str, str] | N
 
 def material_table(runs: Mapping[str, dict], run_intervals: Mapping[str, dict] | None,
                    families: Mapping[str, str] | None = None) -> str:
-    """Every run's row (COLUMNS), best GOSPA first; the 95 % interval beside WITH_INTERVAL where given; and where
-    Stone Soup ran (`families`), each run's plots/s as a multiple of Stone Soup's fastest on the same plots."""
+    """Every run's row (the COLUMNS some run has: a report without speeds has no plots/s), best GOSPA first; the
+    95 % interval beside WITH_INTERVAL where given; and where Stone Soup ran (`families`), each run's plots/s as a
+    multiple of Stone Soup's fastest on the same plots."""
     fastest = stone_soup_fastest(runs, families)
-    headers = [header for _, header, _ in COLUMNS] + (["× Stone Soup's fastest"] if fastest else [])
+    columns = [column for column in COLUMNS if any(values.get(column[0]) is not None for values in runs.values())]
+    headers = [header for _, header, _ in columns] + (["× Stone Soup's fastest"] if fastest else [])
     lines = ["| run | " + " | ".join(headers) + " |", "|---" * (len(headers) + 1) + "|"]
     for name in sorted(runs, key=lambda n: runs[n]["GOSPA"]):
         own = (run_intervals or {}).get(name, {})
-        cells = [_cell(metric, form, runs[name].get(metric), own.get(metric)) for metric, _, form in COLUMNS]
+        cells = [_cell(metric, form, runs[name].get(metric), own.get(metric)) for metric, _, form in columns]
         if fastest:
             cells.append(f"{runs[name]['plots_per_second'] / fastest:,.0f}×")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")

@@ -172,7 +172,8 @@ def comparison_section(comparison: dict, fusion_picture: str, declared: Mapping[
         *(["GOSPA and its parts (m; the parts add up to GOSPA), track switches, tracks assigned per aircraft and track "
            "purity, best GOSPA first (`pipeline/bench/gospa.py`):", gospa] if gospa else []),
         *comparison_tables.scorecard_blocks(comparison["trackers"], (_tracker_intervals(comparison) or {}).get("runs"),
-                                            f"the {comparison.get('sites', {}).get('split', 'test')} routes"),
+                                            f"the {comparison.get('sites', {}).get('split', 'test')} routes",
+                                            comparison.get("pcrb_horizontal_rms_m")),
         *([f"{comparison_tables.SCENES_TITLE} ({comparison['scenes']['scenes']} scenes of "
             f"{comparison['scenes']['aircraft_per_scene']} aircraft; `reports/comparison.md` says how they are made "
             "and scored):", comparison_tables.scenes_table(with_records(comparison["scenes"]["runs"], declared,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import io
-from pipeline.bench.evaluation import evaluate_all, metric_intervals, prepare, run_rule
+from pipeline.bench.evaluation import evaluate_all, metric_intervals, prepare, run_rule, split_bounds
 from pipeline.bench.runs import by_name, declared_runs
 from pipeline.bench.tracker_metrics import THESIS, THESIS_PLOTS, markdown_table
 from pipeline.learning import experiment_tracking, mlflow_models
@@ -72,7 +72,8 @@ def run_evaluate(params: Params, simulated_dir: Path, routes_dir: Path, models_d
         first = results[declared[params.evaluate.runs[0].name]]
         metrics = {"runs": by_name(results), "by_strategy": by_name(by_strategy),
                    "plots": {"target": first["target_plots"], "false": first["false_plots"]},
-                   "thesis": {"runs": THESIS, "plots": THESIS_PLOTS}}
+                   "thesis": {"runs": THESIS, "plots": THESIS_PLOTS},
+                   "pcrb_horizontal_rms_m": split_bounds(params, simulated_dir, models_dir)}
         table = markdown_table({run: values for run, values in results.items() if not run.reference})
         example_rule = run_rule(params, declared[params.evaluate.example_run])
         pictures = {scenario.scenario_id: figures.tracking_picture(scenario, examples[scenario.scenario_id], params,

@@ -15,11 +15,10 @@ from pipeline import io
 from pipeline.bench import peers
 from pipeline.params import Params
 from pipeline.reports import peers_tables
-from pipeline.surveillance import scorecard
+from pipeline.surveillance import pcrb, scorecard
 
 log = logging.getLogger("pipeline")
 
-PCRB_MODELS = ("cv", "ca")  # the tuned filters whose models the bound is given under
 ROOT = Path(".")  # the repository: the stage runs there (dvc.yaml), the real-traffic states path is relative to it
 
 
@@ -48,8 +47,9 @@ def run_peers(params: Params, simulated_dir: Path, routes_dir: Path, models_dir:
         recordings = [r for r in bench.recordings if r.material == material]
         plots = sum(len(r.scene.plots) for r in recordings)
         report["materials"][material] = {**material_summary(params, material, recordings),
-                                          "pcrb_horizontal_rms_m": {kind: peers.bound_rms(recordings, bench.tuned[kind])
-                                                                    for kind in PCRB_MODELS}}
+                                          "pcrb_horizontal_rms_m": {
+            kind: pcrb.horizontal_rms([(r.truth, r.detection_probability, r.radar) for r in recordings],
+                                      bench.tuned[kind]) for kind in pcrb.MODELS}}
         metrics = {name: peers.run_metrics(done, plots) for name, done in units.items()}
         report["runs"][material] = metrics
         report["references"][material] = {name: scorecard.judged(card) for name, card in metrics.items()}

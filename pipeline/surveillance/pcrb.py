@@ -30,9 +30,13 @@ is no limit for these routes. A bound that is one needs the route model's own st
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
 from pipeline.filters import motion_models
+
+MODELS = ("cv", "ca")  # the tuned filters whose models the bench gives the bound under
 
 
 def information_recursion(times_s: np.ndarray, measurement_covariance: np.ndarray, reduction: np.ndarray,
@@ -95,3 +99,20 @@ def route_bounds(times_s: np.ndarray, positions: np.ndarray, detection: np.ndarr
         full[begin:end] = position_bounds(bounds, model)
         horizontal[begin:end] = position_bounds(bounds, model, rotations[begin:end])
     return full, horizontal
+
+
+def horizontal_rms(truths: Sequence[tuple[object, np.ndarray, object]], settings: object) -> float:
+    """The limit beside a bench's position RMS: the RMS (m), over every in-coverage truth sample of every target
+    of every material item, of the horizontal position bound (`route_bounds`) under a tuned filter's `settings`.
+    Each item is (truth, detection probability (T,) of each truth row, radar): `scorecard.Truth` (target id,
+    time s, ECEF position m, in coverage), the simulator's detection probabilities and the radar
+    (`pipeline.params.Radar`) that saw it. NaN where no target is in coverage. A run's RMS is over its confirmed
+    updates alone, so a run that holds the hard scans less often may come nearer the bound than it is."""
+    squares = []
+    for truth, detection, radar in truths:
+        for target in np.unique(truth.target_id[truth.in_coverage]).tolist():
+            rows = np.flatnonzero((truth.target_id == target) & truth.in_coverage)
+            rows = rows[np.argsort(truth.time_s[rows], kind="stable")]
+            _, horizontal = route_bounds(truth.time_s[rows], truth.position[rows], detection[rows], radar, settings)
+            squares.append(horizontal ** 2)
+    return float(np.sqrt(np.concatenate(squares).mean())) if squares else float("nan")
