@@ -26,6 +26,26 @@ def test_the_runs_are_stone_soups_then_ours_then_the_oracle() -> None:
     assert all(run.association is None for run in runs[2:]) and runs[0].run is None
 
 
+def test_without_stone_soup_installed_its_runs_are_skipped_with_a_message(monkeypatch, caplog) -> None:
+    """An environment without Stone Soup: the bench runs ours and the oracle, and says why Stone Soup's are not
+    there and how to install it; the report then has no verdict against it, and no error."""
+    import importlib.util
+
+    from pipeline.peers import stone_soup
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *args: None if name == stone_soup.PACKAGE else real(name, *args))
+    params = tf.make_params()
+    with caplog.at_level("WARNING", logger="pipeline"):
+        runs = peers.peer_runs(params)
+    assert [run.family for run in runs].count(peers.STONE_SOUP) == 0 and runs[-1].name == "oracle_reference"
+    assert "Stone Soup is not installed" in caplog.text and "pip install" in caplog.text
+    report, intervals = _report(100.0, 120.0, [-30.0, -10.0])
+    report["runs"]["test"].pop("stone_soup_jpda")
+    assert peers_tables.verdicts(report, intervals) == []
+
+
 def _report(ours_gospa: float, theirs_gospa: float, paired: list[float]) -> tuple[dict, dict]:
     metrics = {name: {"GOSPA": value, "position_rms_m": 150.0, "probability_of_update": 0.95,
                       "ratio_of_long_gaps": 0.01}

@@ -93,11 +93,15 @@ class PeerRun:
 
 
 def peer_runs(params: Params) -> list[PeerRun]:
-    """Stone Soup's runs, then ours (`peers.runs`), then the registered references, in params order."""
+    """Stone Soup's runs, then ours (`peers.runs`), then the registered references, in params order; Stone Soup's
+    left out, with a warning, where it is not installed (`stone_soup.missing`)."""
     ours = [record(run) for run in (*params.peers.runs_of(params.evaluate), *params.evaluate.reference_runs())
             if run.method in registry.METHODS]
+    why = stone_soup.missing()
+    if why and params.peers.stone_soup.associations:
+        log.warning("peers: %s", why)
     return ([PeerRun(f"{STONE_SOUP}_{association}", STONE_SOUP, None, association, STONE_SOUP_COST)
-             for association in params.peers.stone_soup.associations]
+             for association in params.peers.stone_soup.associations if not why]
             + [PeerRun(run.name, run.family, run, None, run.registered.relative_cost) for run in ours])
 
 

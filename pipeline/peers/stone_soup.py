@@ -23,10 +23,14 @@ so that the comparison is of the association and track management alone:
 Stone Soup shows a track only once confirmed, with the states of its initiation in it: those first
 `min_points - 1` updates are given back as not confirmed, as our tracker marks a track's first updates, so
 both are scored on what a controller would have seen.
+
+Stone Soup is a pinned dependency of the bench, but a user's environment may lack it: `missing` says so (the
+bench then skips its runs with that message rather than stopping on an import error).
 """
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
@@ -41,6 +45,18 @@ from pipeline.recordings.plot_table import Plots
 EPOCH = datetime(1970, 1, 1)  # Stone Soup's times are datetimes: Unix seconds from here (microseconds)
 ASSOCIATIONS = ("gnn", "jpda")
 
+
+
+PACKAGE = "stonesoup"  # its import name; on PyPI `stonesoup`, pinned in pyproject.toml
+
+
+def missing() -> str | None:
+    """Why Stone Soup's runs cannot run here (the package not installed, with the command that installs the
+    pinned version), or None when it can be imported."""
+    if importlib.util.find_spec(PACKAGE) is not None:
+        return None
+    return ("Stone Soup is not installed in this environment (`pip install -c constraints.txt stonesoup`, or "
+            "`make env`): its peer runs are skipped")
 
 @dataclass(frozen=True)
 class StoneSoupSettings:
