@@ -48,6 +48,20 @@ def test_reports_on_the_ground_or_without_altitude_are_counted_and_baro_altitude
     assert truth.column("altitude_m").to_pylist() == [9100.0, 9000.0]  # GNSS height, else barometric
 
 
+def test_reports_without_a_time_or_an_address_are_counted_not_tracked(tmp_path: Path) -> None:
+    """A row whose time (and position time) is empty, or whose aircraft address is, cannot be placed on any
+    aircraft's trajectory: left out and counted by reason, the others read."""
+    path = tmp_path / "states.csv"
+    path.write_text(HEADER.strip() + ",lastposupdate\n"
+                    + "100,aaaaaa,51.0,-1.0,200,90,0,X,False,False,False,1000,9000,9100,99.5\n"
+                    + ",aaaaaa,51.0,-0.98,200,90,0,X,False,False,False,1000,9000,9100,\n"
+                    + "110,,51.0,-0.97,200,90,0,X,False,False,False,1000,9000,9100,109.7\n"
+                    + "120,aaaaaa,51.0,-0.96,200,90,0,X,False,False,False,1000,9000,9100,119.6\n")
+    truth, skipped = opensky_states.read_states(path)
+    assert skipped == {"without a time": 1, "without an aircraft address": 1}
+    assert truth.column("time_unix_s").to_pylist() == [99.5, 119.6]
+
+
 def test_a_position_repeated_without_a_new_update_is_left_out_and_positions_take_their_own_time(tmp_path: Path
                                                                                              ) -> None:
     path = tmp_path / "states.csv"

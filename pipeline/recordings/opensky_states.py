@@ -9,7 +9,7 @@ The project ships one such recording (`external/opensky/`, 84 aircraft over the 
 there). A state vector is an ADS-B position report resampled by OpenSky: `time` (Unix s), `icao24` (the
 aircraft's 24-bit address, its identity), `lat`, `lon` (deg, WGS-84), `geoaltitude` (m, the GNSS height,
 taken as above the WGS-84 ellipsoid; `baroaltitude` where it is missing), `onground`. Reports on the ground,
-or without a position or any altitude, are left out and counted. Each aircraft becomes a target (ids in the
+or without a position, any altitude, a time or an address, are left out and counted. Each aircraft becomes a target (ids in the
 order of their addresses), its positions in ECEF: the truth table `python -m pipeline score` reads
 (`target_id`, `time_unix_s`, `x/y/z_ecef_m`), with the address, the geodetic position and `in_coverage` (True:
 coverage is the radar's to decide).
@@ -63,13 +63,17 @@ def read_states(path: Path) -> tuple[pa.Table, dict[str, int]]:
     no_position = (pc.is_null(table.column("lat")).to_numpy(zero_copy_only=False)
                    | pc.is_null(table.column("lon")).to_numpy(zero_copy_only=False))
     no_altitude = pc.is_null(altitude).to_numpy(zero_copy_only=False) & ~no_position
-    skipped = {"on the ground": int(np.count_nonzero(on_ground & ~no_position & ~no_altitude)),
-               "without a position": int(np.count_nonzero(no_position)),
-               "without an altitude": int(np.count_nonzero(no_altitude))}
     position_time = (pc.coalesce(table.column(POSITION_TIME), table.column("time")) if POSITION_TIME in wanted
                      else table.column("time")).to_numpy(zero_copy_only=False)
-    addresses = np.asarray(table.column("icao24").to_pylist(), dtype=object).astype(str)
-    usable = ~(on_ground | no_position | no_altitude)
+    addresses = np.asarray(table.column("icao24").fill_null("").to_pylist(), dtype=object).astype(str)
+    no_time = ~np.isfinite(position_time) & ~no_position & ~no_altitude
+    no_address = (addresses == "") & ~no_time & ~no_position & ~no_altitude
+    skipped = {"on the ground": int(np.count_nonzero(on_ground & ~no_position & ~no_altitude & ~no_time & ~no_address)),
+               "without a position": int(np.count_nonzero(no_position)),
+               "without an altitude": int(np.count_nonzero(no_altitude)),
+               "without a time": int(np.count_nonzero(no_time)),
+               "without an aircraft address": int(np.count_nonzero(no_address))}
+    usable = ~(on_ground | no_position | no_altitude | no_time | no_address)
     stale = np.zeros(len(usable), bool)
     seen = set()
     for row in np.flatnonzero(usable).tolist():
