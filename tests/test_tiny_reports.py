@@ -1,8 +1,8 @@
-"""What the tiny pipeline writes is what it wrote before (`tools/tiny_reports.py`): every data set,
-model and report of `dvc repro evaluate` on tiny params, timing fields aside, against the digests
-pinned in tests/tiny_reports.json. A refactor passes unchanged; a change that alters an output on
-purpose re-pins them (`python tools/tiny_reports.py --repository <tiny run> --write`), and the diff
-of the pinned file names what it altered."""
+"""What the tiny pipeline writes is what it wrote before (`tools/tiny_reports.py`): the outputs that repeat on
+every machine (the data stages and `tune_kalman`), timing fields aside, against the digests pinned in
+tests/tiny_reports.json. A refactor passes unchanged; a change that alters an output on purpose re-pins them
+(`python tools/tiny_reports.py --repository <tiny run> --write`), and the diff of the pinned file names what it
+altered."""
 
 from __future__ import annotations
 
@@ -14,17 +14,15 @@ from tools import tiny_reports
 
 def test_the_tiny_runs_outputs_are_the_pinned_ones(tiny_pipeline: Path) -> None:
     pinned = json.loads(tiny_reports.PINNED.read_text())
-    same_processor = pinned["processor"] == tiny_reports.processor()
-    changed = tiny_reports.differences(pinned, tiny_reports.output_digests(tiny_pipeline), same_processor)
-    assert not changed, (f"outputs of the tiny run differ from tests/tiny_reports.json: {changed} (pinned on a "
-                         f"{pinned['processor']} processor; only the stages before training are compared elsewhere)")
+    changed = tiny_reports.differences(pinned, tiny_reports.output_digests(tiny_pipeline))
+    assert not changed, f"outputs of the tiny run differ from tests/tiny_reports.json: {changed}"
 
 
-def test_a_changed_output_is_named_and_timings_are_not() -> None:
-    pinned = {"processor": "X", "stages": {"routes": {"data/routes": "md5:a"},
-                                           "evaluate": {"reports/tracker_metrics.json": "json:b"}}}
-    found = {"routes": {"data/routes": "md5:a"}, "evaluate": {"reports/tracker_metrics.json": "json:c"}}
-    assert tiny_reports.differences(pinned, found, same_processor=True) == ["evaluate: reports/tracker_metrics.json"]
-    assert tiny_reports.differences(pinned, found, same_processor=False) == []
+def test_a_changed_output_is_named_and_timings_and_trained_outputs_are_not() -> None:
+    pinned = {"stages": {"routes": {"data/routes": "md5:a"}, "tune_kalman": {"models/kalman_tuned.json": "json:t"},
+                         "evaluate": {"reports/tracker_metrics.json": "json:b"}}}
+    found = {"routes": {"data/routes": "md5:a"}, "tune_kalman": {"models/kalman_tuned.json": "json:u"},
+             "evaluate": {"reports/tracker_metrics.json": "json:c"}, "simulate": {"data/simulated": "md5:s"}}
+    assert tiny_reports.differences(pinned, found) == ["simulate: (not pinned)", "tune_kalman: models/kalman_tuned.json"]
     assert tiny_reports._without_timing({"runs": [{"OSPA": 1.0, "plots_per_second": 9e3}], "seconds": 3}) == {
         "runs": [{"OSPA": 1.0}]}
