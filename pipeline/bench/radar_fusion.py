@@ -98,19 +98,11 @@ def oracle_pairs(snapshot: Snapshot, targets: tuple[dict[int, int], dict[int, in
     return np.stack([rows, columns], axis=1).astype(np.int64)
 
 
-def truth_positions(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray], time: float, max_age_s: float,
-                    frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-    """Ids (T,) and ENU positions (T, 3) at `time` of the aircraft detected (target ids (D,), plot times (D,))
-    within `max_age_s` before it by some radar."""
-    target, plot_time = detections
-    seen = set(target[(plot_time <= time) & (plot_time >= time - max_age_s)].tolist())
-    ids, positions = [], []
-    for route in simulate.routes_by_id(routes):
-        aircraft = int(route["route_id"][0])
-        if aircraft in seen and route["time_unix_s"][0] <= time <= route["time_unix_s"][-1]:
-            ids.append(aircraft)
-            positions.append(simulate.trajectory_of(route)(time))
-    return np.asarray(ids, dtype=np.int64), (np.asarray(positions).reshape(-1, 3) - frame.origin) @ frame.rotation.T
+def truth_at(truth: scorecard.Truth, time: float, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """GOSPA's truth at common time `time`: the ids (T,) and ENU positions (T, 3) of the scene's aircraft in
+    coverage then (`scene_truth`: detected by some radar within `associate.max_age_s` before)."""
+    rows = (truth.time_s == time) & truth.in_coverage
+    return truth.target_id[rows], (truth.position[rows].reshape(-1, 3) - frame.origin) @ frame.rotation.T
 
 
 class PictureScore:
@@ -161,8 +153,8 @@ class PictureScore:
 def scene_truth(routes: pa.Table, detections: tuple[np.ndarray, np.ndarray], times: list[float], max_age_s: float
                 ) -> scorecard.Truth:
     """The scorecard's truth of a scene at its common `times`: every aircraft whose route spans a time, at its
-    ECEF position, in coverage where some radar detected it within `max_age_s` before (GOSPA's truth,
-    `truth_positions`)."""
+    ECEF position, in coverage where some radar detected it within `max_age_s` before (what GOSPA scores
+    against at each time, `truth_at`)."""
     target, plot_time = detections
     ids, at, positions, covered = [], [], [], []
     for route in simulate.routes_by_id(routes):
@@ -229,19 +221,19 @@ def scene_scores(params: Params, scene_id: int, routes: pa.Table, tracked: list[
     counts: dict[str, np.ndarray] = {"times": np.array(len(snapshots)), "oracle_pairs": np.array(0),
                                      **{f"pairs_{m}": np.zeros(3, dtype=np.int64) for m in params.fusion.methods}}
     numbering = {method: SystemTracks() for method in decisions}
+    truth = scene_truth(routes, detected, [snapshot.time for snapshot in snapshots], params.associate.max_age_s)
     for index, snapshot in enumerate(snapshots):
-        truth_ids, truth = truth_positions(routes, detected, snapshot.time, params.associate.max_age_s, frame)
+        truth_ids, positions = truth_at(truth, snapshot.time, frame)
         for name, ids, states in zip(radar_names, snapshot.ids, snapshot.states):
-            pictures[name].add(index, truth_ids, truth, ids, states, snapshot.time, params)
+            pictures[name].add(index, truth_ids, positions, ids, states, snapshot.time, params)
         oracle = decisions[ORACLE][index].pairs
         for method, made in decisions.items():
             _, ids, states, _, _ = table_association.picture(snapshot, made[index], params.associate.fusion_criterion)
             system_numbers = numbering[method].number(snapshot.scenario_id, ids)
-            pictures[f"fused_{method}"].add(index, truth_ids, truth, system_numbers, states, snapshot.time, params)
+            pictures[f"fused_{method}"].add(index, truth_ids, positions, system_numbers, states, snapshot.time, params)
             if method != ORACLE:
                 counts[f"pairs_{method}"] += _pair_counts(made[index].pairs, oracle)
         counts["oracle_pairs"] += len(oracle)
-    truth = scene_truth(routes, detected, [snapshot.time for snapshot in snapshots], params.associate.max_age_s)
     for score in pictures.values():
         score.score_card(truth, frame, params)
     log.info("fusion: scene %d, %d common times, %d oracle pairs", scene_id, len(snapshots),
