@@ -21,6 +21,7 @@ from pipeline.learning import batch_rows
 from pipeline.learning.kalman_net import KalmanNet
 from pipeline.learning.lstm_update import LSTMUpdate, LSTMUpdateConfig
 from pipeline.tracker import registry, run
+from pipeline.tracker.assigner import GlobalNearestPerScan
 from pipeline.tracker.models import Models
 from pipeline.tracker.draws import PairDraws
 from pipeline.tracker.run import Composition, track
@@ -51,11 +52,11 @@ def scaling_network(params) -> KalmanNet:
     return model.eval()
 
 
-def lstm_update(copies: int, floor_m: float) -> LSTMUpdate:
+def lstm_update(copies: int, floor_m: float, dropout: float = 0.2) -> LSTMUpdate:
     """An LSTM update with MC dropout over `copies` copies of a track besides its point estimate and a
     covariance floor of `floor_m`, its cell and output weights perturbed at random (the output layer
-    otherwise reads only the features)."""
-    config = LSTMUpdateConfig(hidden=16, dropout=0.2, mc_samples=copies, detach_prediction=False,
+    otherwise reads only the features); with `dropout` 0, the point estimate alone."""
+    config = LSTMUpdateConfig(hidden=16, dropout=dropout, mc_samples=copies, detach_prediction=False,
                               position_scale_m=1000.0, velocity_scale_mps=400.0, acceleration_scale_mps2=10.0,
                               time_scale_s=6.0, initial_alpha=0.5, initial_beta=0.2, floor_m=floor_m,
                               start_velocity_std_mps=170.0, calibration_ages=4, calibration_gaps=3)
@@ -129,6 +130,22 @@ def test_the_lstm_update_predicts_a_look_ahead_at_once_and_steps_as_plot_by_plot
     assert (scan["association"] == "lstm_update").sum() > 50
     assert True in verdicts and False in verdicts
     assert_same_updates(scan, plot_by_plot)
+
+
+def test_the_lstm_update_with_global_nearest_neighbour_steps_a_scan_in_one_call(params, plots, monkeypatch):
+    """Under global nearest neighbour (`lstm_update_gnn`) a scan's mature tracks step through the LSTM in
+    one call: without dropout (no masks, so no draws whose order could differ) the updates of one plot at a
+    time, to the bit."""
+    model = lstm_update(8, 1000.0, dropout=0.0)
+    assert model.ensemble() == (1, False)
+
+    def compose(method: str) -> Composition:
+        return registry.compose(method, Models({"lstm_update": model}), params.tracker, 4000.0, 0)
+
+    scan, plot_by_plot, _ = scan_and_plot_by_plot(lambda: compose("lstm_update_gnn"), plots, monkeypatch)
+    assert (scan["association"] == "lstm_update_gnn").sum() > 50
+    assert_same_updates(scan, plot_by_plot)
+    assert isinstance(compose("lstm_update_gnn").assigner, GlobalNearestPerScan)
 
 
 @pytest.mark.parametrize("method", ["radius", "via", "mia", "ae"])

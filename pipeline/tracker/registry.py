@@ -43,7 +43,7 @@ NETWORKS = ("predictor", "filter")  # the estimator of every neural method
 TUNED_FILTERS = "kalman_tuned"
 LSTM_UPDATE = "lstm_update"  # the LSTM update on a Kalman prediction (models/lstm_update.pt)
 KALMAN_NET = "kalman_net"  # the network-scaled Kalman filter (issue 17)
-GLOBAL_SUFFIX = "_gnn"  # a classical method with scan-wise global-nearest-neighbour association
+GLOBAL_SUFFIX = "_gnn"  # a method with scan-wise global-nearest-neighbour association
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
@@ -135,7 +135,7 @@ def _classical(name: str, kind: str, global_nearest: bool):
     return compose
 
 
-def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+def _lstm_update(global_nearest: bool):
     """The LSTM update on a CA Kalman prediction (issue 18), the chi-square gate on its MC-dropout covariance,
     young tracks too: the prediction from a track's first plot is calibrated for the gate like any other
     (`lstm_update.calibrate`, age 1: the copies' start velocities), so a one-plot track is gated by its own
@@ -143,16 +143,22 @@ def _lstm_update(models: "Models", params: "TrackerParams", window_m: float, see
     and never beyond `tracker.lstm_update.gate_m` of the prediction (`BoundedChiSquareGate`). The start
     velocities span the training's speeds, so a faster target's second plot falls outside every young
     gate and each plot starts a track (issue 27): with `tracker.lstm_update.young_window_fallback` the young gate
-    also takes what the `window_m` ball takes (`RadiusFloorGate`), as every other method's does."""
-    from pipeline.tracker.gate import BoundedChiSquareGate, RadiusFloorGate
-    from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
-    gate = BoundedChiSquareGate(params.association.kalman_gate_probability,
-                                params.lstm_update.gate_m)
-    young_gate = RadiusFloorGate(gate, window_m) if params.lstm_update.young_window_fallback else gate
-    estimator = LSTMUpdateEstimator(models[LSTM_UPDATE], seed, runtime=params.learned_runtime, device=params.device)
-    return _composition("lstm_update", estimator, gate,
-                        params.association.young_track_plots, window_m, params, young_gate=young_gate,
-                        learned=(True, True))
+    also takes what the `window_m` ball takes (`RadiusFloorGate`), as every other method's does. Nearest
+    neighbour per plot (the thesis's association) or, `global_nearest`, per antenna scan (issue 29: a scan's
+    mature tracks step through the LSTM in one call)."""
+    def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
+        from pipeline.tracker.assigner import GlobalNearestPerScan
+        from pipeline.tracker.gate import BoundedChiSquareGate, RadiusFloorGate
+        from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
+        gate = BoundedChiSquareGate(params.association.kalman_gate_probability,
+                                    params.lstm_update.gate_m)
+        young_gate = RadiusFloorGate(gate, window_m) if params.lstm_update.young_window_fallback else gate
+        estimator = LSTMUpdateEstimator(models[LSTM_UPDATE], seed, runtime=params.learned_runtime,
+                                        device=params.device)
+        return _composition(LSTM_UPDATE + GLOBAL_SUFFIX if global_nearest else LSTM_UPDATE, estimator, gate,
+                            params.association.young_track_plots, window_m, params, young_gate=young_gate,
+                            assigner=GlobalNearestPerScan() if global_nearest else None, learned=(True, True))
+    return compose
 
 
 def _kalman_net(name: str, global_nearest: bool):
@@ -194,7 +200,9 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     Method("mia", "MIA", NEURAL, NETWORKS, _mia, 2.2),
     Method("ae", "AE", NEURAL, (*NETWORKS, "autoencoder"), _ae, 1.0),
     *_classical_methods(),
-    Method("lstm_update", "LSTM update", NEURAL, (LSTM_UPDATE,), _lstm_update, 3.0),
+    *(Method(name, label, NEURAL, (LSTM_UPDATE,), _lstm_update(gnn), cost)
+      for name, label, gnn, cost in ((LSTM_UPDATE, "LSTM update", False, 3.0),
+                                     (LSTM_UPDATE + GLOBAL_SUFFIX, "LSTM update + GNN", True, 3.0))),
     *(Method(name, label, NEURAL, (KALMAN_NET,), _kalman_net(name, gnn), cost)
       for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 8.0),
                                      ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 8.8))),
