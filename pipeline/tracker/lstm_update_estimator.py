@@ -74,6 +74,7 @@ class LSTMUpdateEstimator:
                                    for size in (9, model.config.hidden, model.config.hidden)),
                                  torch.zeros(capacity, dtype=torch.long, device=self.device))
         self.time = np.zeros(capacity)
+        self.velocity = np.zeros((capacity, 3))  # the point estimates' (copy 0's), kept as stored: read per update
         self.started = np.zeros(capacity, dtype=bool)
         self._predict = step_runtime.traced(model, step_runtime.LSTMPredict, runtime,
                                             lambda rows: self._example(rows)[0])
@@ -100,6 +101,7 @@ class LSTMUpdateEstimator:
             self.ensemble = Ensemble(*(torch.cat([part, part.new_zeros((extra, *part.shape[1:]))])
                                        for part in _parts(self.ensemble)))
             self.time = np.concatenate([self.time, np.zeros(extra)])
+            self.velocity = np.concatenate([self.velocity, np.zeros((extra, 3))])
             self.started = np.concatenate([self.started, np.zeros(extra, dtype=bool)])
         self.started[slot] = False
 
@@ -108,6 +110,7 @@ class LSTMUpdateEstimator:
         for part, value in zip(_parts(self.ensemble), _parts(ensemble)):
             part[index] = value
         self.time[slots] = time
+        self.velocity[slots] = ensemble.x[:, 0, 1::3].cpu().numpy()
 
     def _start_ensembles(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the ensembles of the tracks at `slots` not started yet, at their first plots."""
@@ -142,10 +145,9 @@ class LSTMUpdateEstimator:
 
     def velocities(self, tracks: LiveTracks, slots: np.ndarray) -> tuple[np.ndarray, None]:
         """The velocities (K, 3) m/s of the tracks at `slots` after their latest update: the point
-        estimate's (copy 0, undropped), state per axis [p, v, a]. No covariance: the network calibrates
-        only the position's (`LSTMUpdate.estimate_covariance`)."""
-        x = self.ensemble.x[torch.as_tensor(slots, device=self.device)]
-        return x[:, 0, 1::3].cpu().numpy(), None
+        estimate's (copy 0, undropped), state per axis [p, v, a], kept on the CPU as each update stores it.
+        No covariance: the network calibrates only the position's (`LSTMUpdate.estimate_covariance`)."""
+        return self.velocity[slots], None
 
     def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -60,29 +60,33 @@ class RefusalWatch:
         self.window_m, self.young, self.mature = window_m, young, mature
         self.counts = RefusalCounts()
 
-    def count(self, live: LiveTracks, row: int, candidates: Candidates) -> None:
-        """Count plot `row` of `live.plots` with its scored `candidates`, the tracks as they were scored."""
-        if not len(candidates.slots):
+    def count(self, live: LiveTracks, rows: range, candidates: list[Candidates]) -> None:
+        """Count the plots of `rows` of `live.plots`, each with its scored `candidates` (the tracks as they
+        were scored), in one pass over their (track, plot) pairs: a scan's plots cost one set of NumPy calls."""
+        counts = [len(c.slots) for c in candidates]
+        if not any(counts):
             return
-        learned = candidates.slots[np.where(candidates.mature, self.mature, self.young)]
-        if not len(learned):
-            return
-        distance = np.linalg.norm(live.last_plot[learned] - live.plots.position[row], axis=1)
-        if not (distance < self.window_m).any():
-            return
-        self.counts.in_window += 1
-        self.counts.refused += int(not np.isfinite(candidates.errors).any())
+        slots = np.concatenate([c.slots for c in candidates])
+        mature = np.concatenate([c.mature for c in candidates])
+        accepted = np.isfinite(np.concatenate([c.errors for c in candidates]))
+        plot = np.repeat(np.arange(len(candidates)), counts)
+        learned = np.where(mature, self.mature, self.young)
+        near = np.linalg.norm(live.last_plot[slots] - live.plots.position[np.asarray(rows)[plot]], axis=1) < self.window_m
+        in_window = np.bincount(plot[learned & near], minlength=len(candidates)) > 0
+        refused = in_window & (np.bincount(plot[accepted], minlength=len(candidates)) == 0)
+        self.counts.in_window += int(np.count_nonzero(in_window))
+        self.counts.refused += int(np.count_nonzero(refused))
 
 
-YOUNG_FALLBACK_METHOD = "lstm_update"  # the method whose young-track gate `young_window_fallback` widens
+YOUNG_FALLBACK_METHODS = ("lstm_update", "lstm_update_gnn")  # whose young-track gate `young_window_fallback` widens
 
 
 def remedy(method: str, young_fallback: bool) -> str:
     """What a user can do about a learned gate that keeps refusing plots: widen the LSTM update's young-track
     gate where that is still off, else track such targets with a method whose gate is not learned."""
-    if method == YOUNG_FALLBACK_METHOD and not young_fallback:
+    if method in YOUNG_FALLBACK_METHODS and not young_fallback:
         return "tracker.lstm_update.young_window_fallback widens its young tracks' gate to the window"
-    told = " even with tracker.lstm_update.young_window_fallback on" if method == YOUNG_FALLBACK_METHOD else ""
+    told = " even with tracker.lstm_update.young_window_fallback on" if method in YOUNG_FALLBACK_METHODS else ""
     return f"its gate cannot follow such targets{told}: a classical method (imm, imm_gnn) or kalman_net tracks them"
 
 

@@ -189,8 +189,7 @@ def _count_refusals(live: LiveTracks, rows: range, candidates: list[Candidates],
     """Hand the plots of `rows` with their final candidates, scored against the tracks as they are
     now, to the composition's `RefusalWatch`, if it has one: each plot once."""
     if tracker.refusals is not None:
-        for row, c in zip(rows, candidates):
-            tracker.refusals.count(live, row, c)
+        tracker.refusals.count(live, rows, candidates)
 
 
 def _chosen(live: LiveTracks, c: Candidates, choice: int) -> tuple[int, int, int]:
