@@ -16,7 +16,7 @@ import pytest
 from pipeline import io
 from pipeline.recordings.plot_table import NO_TARGET
 from pipeline.tracker import registry
-from pipeline.tracker.assigner import GlobalNearestPerScan, NearestPerPlot, TrueAssociation
+from pipeline.tracker.assigner import Candidates, GlobalNearestPerScan, NearestPerPlot, TrueAssociation
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusFloorGate, RadiusGate, Scores, WindowGate
 from pipeline.tracker.management import ThesisWeights
@@ -333,6 +333,25 @@ def test_refusals_counted_in_chunks_are_those_of_the_whole_recording():
         list(track_chunks(chunks, composition(young_gate=FixedGate(), gate=FixedGate(), refusals=watch)))
         counts.append(watch.counts)
     assert counts[0] == counts[1] == RefusalCounts(in_window=5, refused=5)
+
+
+def test_a_scans_refusals_are_counted_at_once_as_plot_by_plot():
+    """Three one-plot tracks at 0, 2000 and 3500 m and a scan of three plots, counted by a watch of learned
+    young gates: the plot at 1000 m (two young candidates in the window, one accepting) is in the window;
+    the one at 20 km has no candidate; the one at 2600 m, refused by its young candidate 600 m off and by
+    a mature one whose gate is not learned, is in the window and refused. One call for the scan counts
+    what three calls, a plot each, count."""
+    live = LiveTracks(plots([0, 0, 0, 6, 6, 6], [0, 2000, 3500, 1000, 20000, 2600]), RULE, latest_plots=0)
+    for row in range(3):
+        live.start(row)
+    scan = [Candidates(np.array([0, 1]), np.array([np.inf, 0.5]), np.array([False, False]), None, 0),
+            Candidates(np.empty(0, dtype=np.int64), np.empty(0), np.empty(0, dtype=bool), None, 0),
+            Candidates(np.array([1, 2]), np.array([np.inf, np.inf]), np.array([False, True]), None, 0)]
+    at_once, plot_by_plot = (RefusalWatch(WINDOW_M, young=True, mature=False) for _ in range(2))
+    at_once.count(live, range(3, 6), scan)
+    for row, candidates in zip(range(3, 6), scan):
+        plot_by_plot.count(live, range(row, row + 1), [candidates])
+    assert at_once.counts == plot_by_plot.counts == RefusalCounts(in_window=2, refused=1)
 
 
 @pytest.mark.parametrize("refused, warned", [(0, False), (1, False), (2, True)])
