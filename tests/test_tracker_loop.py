@@ -21,7 +21,7 @@ from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import AcceptAll, RadiusFloorGate, RadiusGate, Scores, WindowGate
 from pipeline.tracker.management import ThesisWeights
 from pipeline.tracker.models import Models
-from pipeline.tracker.refusals import RefusalCounts, RefusalWatch, warn_refusals
+from pipeline.tracker.refusals import RefusalCounts, RefusalWatch, remedy, warn_refusals
 from pipeline.tracker.run import Composition, track, track_chunks
 from pipeline.tracker.tracks import LiveTracks
 from tests import tracker_fixtures as tf
@@ -352,6 +352,16 @@ def test_a_scans_refusals_are_counted_at_once_as_plot_by_plot():
     for row, candidates in zip(range(3, 6), scan):
         plot_by_plot.count(live, range(row, row + 1), [candidates])
     assert at_once.counts == plot_by_plot.counts == RefusalCounts(in_window=2, refused=1)
+
+
+@pytest.mark.parametrize("method, young_fallback, told", [
+    ("lstm_update", False, "young_window_fallback widens"), ("lstm_update_gnn", False, "young_window_fallback widens"),
+    ("lstm_update_gnn", True, "even with tracker.lstm_update.young_window_fallback on"),
+    ("kalman_net", False, "a classical method")])
+def test_the_remedy_for_a_refusing_gate_names_what_is_left_to_try(method, young_fallback, told):
+    """Either LSTM update (per plot or per scan) is first told to widen its young tracks' gate; once that is
+    on, or for another learned gate, a method whose gate is not learned."""
+    assert told in remedy(method, young_fallback)
 
 
 @pytest.mark.parametrize("refused, warned", [(0, False), (1, False), (2, True)])
