@@ -399,21 +399,22 @@ def main() -> None:
     print(f"{args.false_plots:g} false plots per scan, {period:g} s scans, detection {args.detection:g}; "
           f"filters: {args.models or 'untuned (params start values)'}")
     rows = []
+    width = max([10, *map(len, args.methods)])  # the method column: the longest name
     if sweep:
-        print(f"{'recording':24s} {'method':10s} {'plots':>10s} {'plots/s':>8s} {'per CPU s':>9s} {'slots':>6s} "
+        print(f"{'recording':24s} {'method':{width}s} {'plots':>10s} {'plots/s':>8s} {'per CPU s':>9s} {'slots':>6s} "
               f"{'conf.':>5s} {'peak MiB':>9s}")
     for config in sweep:
         for method in args.methods:
             result, peak = run_child({**base, "method": method, "aircraft": config.aircraft, "scans": config.scans})
             rows.append((config, method, result, peak))
-            print(f"{config.name:24s} {method:10s} {result['plots']:10,d} {result['plots'] / result['seconds']:8,.0f} "
+            print(f"{config.name:24s} {method:{width}s} {result['plots']:10,d} {result['plots'] / result['seconds']:8,.0f} "
                   f"{result['plots'] / result['cpu']:9,.0f} {result['slots']:6,d} {result['on_confirmed']:5.0%} "
                   f"{peak / MIB:9,.0f}", flush=True)
     if sweep:
         print("(in memory, the tracking loop only; slots: the live-track arrays' size at the end; conf.: share of "
               "the aircraft's plots that went to confirmed tracks; peak: the child's peak RSS)")
     if long and args.methods:
-        print(f"\n{'recording':24s} {'method':10s} {'plots':>10s} {'seconds':>8s} {'plots/s':>8s} {'updates':>10s} "
+        print(f"\n{'recording':24s} {'method':{width}s} {'plots':>10s} {'seconds':>8s} {'plots/s':>8s} {'updates':>10s} "
               f"{'confirmed':>9s} {'peak MiB':>9s}   (python -m pipeline track, chunks of "
               f"{params.chunk_plots:,d} plots{'; out of order: parts swapped in pairs' if args.out_of_order else ''})")
     with tempfile.TemporaryDirectory() as scratch:
@@ -423,16 +424,16 @@ def main() -> None:
             for method in args.methods:
                 result = run_command(args, config, method, models, folder)
                 rows.append((config, method, result, result["peak"]))
-                print(f"{config.name:24s} {method:10s} {result['plots']:10,d} {result['seconds']:8,.0f} "
+                print(f"{config.name:24s} {method:{width}s} {result['plots']:10,d} {result['seconds']:8,.0f} "
                       f"{result['plots'] / result['seconds']:8,.0f} {result['updates']:10,d} "
                       f"{result['confirmed']:9,d} {result['peak'] / MIB:9,.0f}", flush=True)
         if long and args.reading:
-            print(f"\n{'recording':24s} {'reader':10s} {'plots':>10s} {'seconds':>8s} {'peak MiB':>9s}   (read and "
+            print(f"\n{'recording':24s} {'reader':{width}s} {'plots':>10s} {'seconds':>8s} {'peak MiB':>9s}   (read and "
                   f"placed chunk by chunk, not tracked)")
         for config in long if args.reading else ():
             for whole in (False, True):
                 result = run_reading(args, config, whole, folder)
-                print(f"{config.name:24s} {'whole' if whole else 'track':10s} {result['plots']:10,d} "
+                print(f"{config.name:24s} {'whole' if whole else 'track':{width}s} {result['plots']:10,d} "
                       f"{result['seconds']:8,.1f} {result['peak'] / MIB:9,.0f}", flush=True)
     goals(args, rows, base)
 
@@ -440,25 +441,26 @@ def main() -> None:
 def goals(args, rows, base) -> None:
     """The issue's two goals, pass or fail, and where the time goes when the speed goal fails."""
     rate = {(c.kind, c.value, m): r["plots"] / r["cpu"] for c, m, r, _ in rows if c.kind == "aircraft"}
-    print("\nGoals (issue 16, item 4):")
+    width = max([10, *map(len, args.methods)])
+    print("\nGoals (issue 16, item 4; issue 29 for the learned methods):")
     slow = []
     for method in args.methods:
         one, many = rate.get(("aircraft", 1, method)), rate.get(("aircraft", 1000, method))
         if one is None or many is None:
-            print(f"  speed   {method:10s} needs the 1 and 1000 aircraft runs: not judged")
+            print(f"  speed   {method:{width}s} needs the 1 and 1000 aircraft runs: not judged")
             continue
         ok = many >= 0.5 * one
         slow += [] if ok else [method]
-        print(f"  speed   {method:10s} 1000 aircraft {many:,.0f} plots/CPU s vs single aircraft {one:,.0f}: "
+        print(f"  speed   {method:{width}s} 1000 aircraft {many:,.0f} plots/CPU s vs single aircraft {one:,.0f}: "
               f"{many / one:.2f}x (goal >= 0.5x) {'PASS' if ok else 'FAIL'}")
     for method in args.methods:
         long = sorted((c.value, r["plots"], peak) for c, m, r, peak in rows if c.kind == "hours" and m == method)
         for hours, plots, peak in long:
             verdict = f"(goal < 1 GiB) {'PASS' if peak < GIB else 'FAIL'}" if hours == 24 else ""
-            print(f"  memory  {method:10s} {hours:g} h, {plots:,d} plots: peak {peak / GIB:.2f} GiB {verdict}")
+            print(f"  memory  {method:{width}s} {hours:g} h, {plots:,d} plots: peak {peak / GIB:.2f} GiB {verdict}")
         if len(long) > 1:
             (h0, p0, m0), (h1, p1, m1) = long[0], long[-1]
-            print(f"  memory  {method:10s} from {h0:g} h to {h1:g} h: {p1 / p0:.1f}x the plots, {m1 / m0:.2f}x the peak")
+            print(f"  memory  {method:{width}s} from {h0:g} h to {h1:g} h: {p1 / p0:.1f}x the plots, {m1 / m0:.2f}x the peak")
     if args.no_diagnose:
         return
     for method in slow:
