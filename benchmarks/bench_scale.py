@@ -399,7 +399,7 @@ def main() -> None:
     print(f"{args.false_plots:g} false plots per scan, {period:g} s scans, detection {args.detection:g}; "
           f"filters: {args.models or 'untuned (params start values)'}")
     rows = []
-    width = max([10, *map(len, args.methods)])  # the method column: the longest name
+    width = method_width(args.methods)
     if sweep:
         print(f"{'recording':24s} {'method':{width}s} {'plots':>10s} {'plots/s':>8s} {'per CPU s':>9s} {'slots':>6s} "
               f"{'conf.':>5s} {'peak MiB':>9s}")
@@ -438,10 +438,15 @@ def main() -> None:
     goals(args, rows, base)
 
 
+def method_width(methods: list[str]) -> int:
+    """The method column's width: the longest name, at least 10."""
+    return max([10, *map(len, methods)])
+
+
 def goals(args, rows, base) -> None:
     """The issue's two goals, pass or fail, and where the time goes when the speed goal fails."""
     rate = {(c.kind, c.value, m): r["plots"] / r["cpu"] for c, m, r, _ in rows if c.kind == "aircraft"}
-    width = max([10, *map(len, args.methods)])
+    width = method_width(args.methods)
     print("\nGoals (issue 16, item 4; issue 29 for the learned methods):")
     slow = []
     for method in args.methods:
