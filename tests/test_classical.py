@@ -47,9 +47,11 @@ T0 = 1.78e9                               # an instant in 2026, Unix seconds
 # ----------------------------------------------------------------------------- helpers
 
 def settings(kind: str, noise_std: tuple[float, ...], velocity_std_mps: float = 500.0) -> FilterSettings:
-    """A filter with the given process noise; a new track's velocity is unknown up to 500 m/s."""
+    """A filter with the given process noise; a new track's velocity is unknown up to 500 m/s; the IMM with
+    turns turns at 3 deg/s."""
     return FilterSettings(kind, tuple(noise_std), velocity_std_mps, acceleration_std_mps2=20.0,
-                          switch_probability=0.05, initial_cv_probability=0.9)
+                          switch_probability=0.05, initial_cv_probability=0.9,
+                          turn_rate_dps=3.0 if kind in classical_filters.TURNING_KINDS else 0.0)
 
 
 def flight(turn_rates_dps: np.ndarray, heading_rad: float = 0.3, start: tuple[float, float, float] = (20e3, -5e3, 8e3),
@@ -106,11 +108,13 @@ def scans_allowed_outside(scans: int) -> int:
 STRAIGHT = np.zeros(SCANS - 1)
 TURNING = np.full(SCANS - 1, 3.0)  # 3 deg/s at 200 m/s: 10.5 m/s^2 of centripetal acceleration
 MATCHED = {"cv": (8.0,), "ca": (3.0,), "imm": (1.0, 3.0)}  # noise that covers a 3 deg/s turn
+BATCH_NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0), "imm_ct": (1.0, 2.0)}  # the batched twin's checks
+FLAT_FRAME_KINDS = tuple(kind for kind in classical_filters.KINDS if kind not in classical_filters.TURNING_KINDS)
 
 
 # ----------------------------------------------------------------------------- consistency of each filter
 
-@pytest.mark.parametrize("kind", classical_filters.KINDS)
+@pytest.mark.parametrize("kind", FLAT_FRAME_KINDS)
 @pytest.mark.parametrize("motion", ["straight", "turning"])
 def test_filter_is_consistent_when_its_noise_covers_the_motion(kind, motion):
     """Each filter (CV 8 m/s^2, CA 3 m/s^3, IMM 1 m/s^2 + 3 m/s^3) tells the truth about its errors on a
@@ -154,6 +158,40 @@ def test_imm_switches_to_the_turn_model_in_a_turn():
     assert ca_probability[3:before + 1].max() < 0.5
     assert ca_probability[before + 2:before + turn + 1].mean() > 0.5
     assert ca_probability[before + turn + 4:].max() < 0.5
+
+
+def test_imm_with_turns_takes_the_turn_of_the_aircrafts_direction_and_follows_it_closer(radar):
+    """The IMM with turns (CV 1 m/s^2, turns of 6 deg/s with 1 m/s^2) in ECEF, where each turn is about the
+    track's own vertical: a 250 m/s flight 40 km from the radar, straight for 15 scans, a 6 deg/s turn
+    to the right for 10 scans (a fighter's, 26 m/s^2), straight again. Averaged over 10 runs, the right
+    turn's model leads through the turn and the left one stays unlikely; through the turn its position
+    error is below the CV + CA IMM's (1 m/s^2 + 3 m/s^3), which lags the turn."""
+    before, turn, after = 15, 10, 15
+    times, enu = flight(np.concatenate([np.zeros(before), np.full(turn, 6.0), np.zeros(after - 1)]),
+                        start=(30e3, 25e3, 9000.0), speed=250.0)
+    truth = to_ecef(enu, radar)
+    turns = replace(settings("imm_ct", (1.0, 1.0)), turn_rate_dps=6.0)
+    rng = np.random.default_rng(7)
+    probabilities, errors = [], {"imm_ct": [], "imm": []}
+    for _ in range(10):
+        plots, covariance = radar_plots(truth, radar, rng)
+        for kind, kind_settings in (("imm_ct", turns), ("imm", settings("imm", (1.0, 3.0)))):
+            estimator = classical_filters.start_filter(kind_settings, plots[0], covariance[0])
+            mu, error = [], []
+            for k in range(1, len(times)):
+                classical_filters.advance(estimator, kind_settings, times[k] - times[k - 1])
+                classical_filters.update(estimator, plots[k], covariance[k])
+                mu.append(classical_filters.model_probabilities(estimator))
+                error.append(np.linalg.norm(classical_filters.posterior(estimator)[0][kind_settings.measured]
+                                            - truth[k]))
+            errors[kind].append(error)
+            if kind == "imm_ct":
+                probabilities.append(mu)
+    mu = np.mean(probabilities, axis=0)   # (plots - 1, 3): CV, left, right
+    in_turn = slice(before + 1, before + turn)  # plot k + 1 is at index k
+    assert mu[in_turn, 2].mean() > 0.5 and mu[in_turn, 1].max() < 0.2
+    assert mu[3:before, 0].mean() > 0.5
+    assert np.mean(errors["imm_ct"], axis=0)[in_turn].mean() < np.mean(errors["imm"], axis=0)[in_turn].mean()
 
 
 # ----------------------------------------------------------------------------- the batched twin
@@ -234,7 +272,7 @@ def test_batched_filters_equal_filterpy_step_by_step(radar, kind):
     covariances at every plot, through a restart in the middle of a row and padding steps (NaN there),
     and ends with filterpy's mode probabilities."""
     rows = realistic_rows(radar)
-    kind_settings = settings(kind, {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}[kind], velocity_std_mps=300.0)
+    kind_settings = settings(kind, BATCH_NOISE[kind], velocity_std_mps=300.0)
     filtered = batch_filters.filter_sequences(kind_settings, *rows)
     x, P, last = filtered.position, filtered.covariance, filtered.last
     expected_x, expected_P, expected_probabilities = filterpy_reference(kind_settings, *rows)
@@ -251,7 +289,7 @@ def test_innovation_distance_is_the_nis_the_tracker_gates_with(radar, kind):
     filterpy's prediction to its time (`predicted_gaussian`, the tracker's gate) with S = P + R;
     NaN where the row restarts or is padding."""
     times, positions, covariances, valid, restart = rows = realistic_rows(radar)
-    kind_settings = settings(kind, {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}[kind], velocity_std_mps=300.0)
+    kind_settings = settings(kind, BATCH_NOISE[kind], velocity_std_mps=300.0)
     distance = batch_filters.filter_sequences(kind_settings, *rows).innovation_distance
     measured = kind_settings.measured
     expected = np.full(times.shape, np.nan)
@@ -279,7 +317,7 @@ def test_gating_prediction_is_the_filters_own_prediction(radar, kind):
     advancing it would: for the IMM the models' predictions mixed with the predicted mode
     probabilities (c-bar). The batched filters predict the same."""
     times, positions, covariances, _, _ = realistic_rows(radar)
-    kind_settings = settings(kind, {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0)}[kind], velocity_std_mps=300.0)
+    kind_settings = settings(kind, BATCH_NOISE[kind], velocity_std_mps=300.0)
     estimator = classical_filters.start_filter(kind_settings, positions[0, 0], covariances[0, 0])
     for k in range(1, 8):
         classical_filters.advance(estimator, kind_settings, times[0, k] - times[0, k - 1])
@@ -288,9 +326,9 @@ def test_gating_prediction_is_the_filters_own_prediction(radar, kind):
     state, covariance = classical_filters.predicted_gaussian(estimator, kind_settings, 9.0)
     np.testing.assert_array_equal(classical_filters.posterior(estimator)[0], before)
 
-    probabilities = estimator.cbar.copy() if kind == "imm" else np.ones(1)
+    probabilities = estimator.cbar.copy() if kind_settings.is_imm else np.ones(1)
     classical_filters.advance(estimator, kind_settings, 9.0)
-    models = estimator.filters if kind == "imm" else [estimator]
+    models = estimator.filters if kind_settings.is_imm else [estimator]
     mean = sum(p * f.x for p, f in zip(probabilities, models))
     spread = sum(p * (f.P + np.outer(f.x - mean, f.x - mean)) for p, f in zip(probabilities, models))
     np.testing.assert_allclose(state, mean, rtol=1e-12)
@@ -408,6 +446,17 @@ def test_imm_tuning_searches_the_switch_probability_too(material):
                                                      "switch_probability"}
     assert tuning.at_bounds(start, replace(start, switch_probability=1e-6 * 1000.1)) == ["switch_probability"]
     assert "switch_probability" not in tuning.at_bounds(settings("cv", (1.0,)), settings("cv", (1.0,)))
+
+
+def test_imm_with_turns_tuning_searches_its_turn_rate_too(material):
+    """The IMM with turns tunes its turns' rate with its noise, switch probability and velocity spread (log,
+    within a factor of 1000 of the start), names it when it ends at the search's edge, and lowers its cost."""
+    start = replace(settings("imm_ct", (1.0, 1.0)), turn_rate_dps=0.5)
+    tuned, before, after, _ = tuning.tune(start, material, "rmse_in_gate", 300)
+    assert tuned.turn_rate_dps != start.turn_rate_dps and tuned.turn_rate_dps > 0.0
+    assert after.cost("rmse_in_gate") <= before.cost("rmse_in_gate")
+    assert tuning.at_bounds(start, replace(start, turn_rate_dps=0.5 * 1000.1)) == ["turn_rate_dps"]
+    assert "turn_rate_dps" not in tuning.at_bounds(settings("imm", (1.0, 3.0)), settings("imm", (1.0, 3.0)))
 
 
 def test_tuning_that_does_not_converge_raises_with_the_values_reached(material):
@@ -554,6 +603,8 @@ def test_constant_acceleration_transition_moves_a_state_exactly():
     ("imm_switch_probability", 1.0),
     ("imm_initial_cv_probability", 1.5),
     ("restart_gap_s", 0.0),
+    ("imm_ct_noise_std", [1.0, 1.0, 1.0]),
+    ("imm_ct_turn_rate_dps", 0.0),
 ])
 def test_kalman_params_reject_bad_values_naming_the_key(params_tree, key, value):
     """params.yaml's `kalman` section: a bad value is a ParamError that names kalman.<key>."""
@@ -590,7 +641,7 @@ def tracking_uri(tmp_path_factory) -> str:
 
 
 def test_tune_stage_saves_tuned_filters_and_a_report(simulated_split, tracking_uri, tmp_path, monkeypatch):
-    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the three tuned
+    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the four tuned
     filters, reports/kalman_tuning.json has each filter's cost before and after (not higher after),
     and one MLflow run records them."""
     import mlflow

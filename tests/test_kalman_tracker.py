@@ -97,7 +97,7 @@ def test_tracker_filter_is_filterpys_step_by_step_started_updated_coasted_and_ga
         at = motion_models.velocity_indices(settings.models[0])
         np.testing.assert_allclose(velocity[0], x[at], rtol=1e-9, atol=1e-6)
         np.testing.assert_allclose(velocity_covariance[0], P[np.ix_(at, at)], rtol=1e-7, atol=1e-6)
-        if kind == "imm":
+        if settings.is_imm:
             np.testing.assert_allclose(estimator.mu[slot], reference.cbar, rtol=1e-9, atol=1e-12)
     assert gated_out >= len(flight) - 3  # the 5 km plots, bar the first few while the velocity is unknown
 

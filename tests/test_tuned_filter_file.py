@@ -18,6 +18,7 @@ TUNED = {
     "cv": FilterSettings("cv", (1.5,), 110.0, 10.0, 0.05, 0.9),
     "ca": FilterSettings("ca", (0.3,), 400.0, 10.0, 0.05, 0.9),
     "imm": FilterSettings("imm", (0.8, 0.47), 122.0, 10.0, 0.05, 0.9),
+    "imm_ct": FilterSettings("imm_ct", (0.8, 1.9), 122.0, 10.0, 0.05, 0.9, 4.2),
 }
 
 
@@ -33,7 +34,7 @@ def tuned_file(folder: Path, **changes: dict) -> Path:
     return path
 
 
-def test_the_tune_stages_file_loads_as_its_three_filters(tmp_path):
+def test_the_tune_stages_file_loads_as_its_four_filters(tmp_path):
     assert load_settings(tuned_file(tmp_path)) == TUNED
 
 
@@ -57,6 +58,12 @@ def test_probabilities_at_their_bounds_are_accepted(tmp_path):
     ("imm", {"kind": "cv"}, "filter 'imm', kind = 'cv': must be 'imm'"),
     ("imm", {"switch_probability": None}, "filter 'imm': key 'switch_probability' missing"),
     ("cv", {"noise": [1.0]}, "filter 'cv': key 'noise': unknown"),
+    ("imm_ct", {"turn_rate_dps": 0.0}, "filter 'imm_ct', turn_rate_dps = 0.0: must be a finite standard deviation"),
+    ("imm_ct", {"turn_rate_dps": float("nan")}, "filter 'imm_ct', turn_rate_dps = nan: must be a finite"),
+    ("imm_ct", {"noise_std": [0.8, 1.9, 1.9]}, "filter 'imm_ct', noise_std = [0.8, 1.9, 1.9]: must list 2 standard "
+                                               "deviation(s), one per motion model ('cv9', 'ct')"),
+    ("imm", {"turn_rate_dps": 3.0}, "filter 'imm', turn_rate_dps = 3.0: must be 0, imm has no turning model"),
+    ("cv", {"turn_rate_dps": None}, "filter 'cv': key 'turn_rate_dps' missing"),
 ])
 def test_a_value_out_of_range_is_refused_naming_file_filter_key_and_value(tmp_path, kind, entries, named):
     path = tuned_file(tmp_path, **{kind: entries})
@@ -64,7 +71,7 @@ def test_a_value_out_of_range_is_refused_naming_file_filter_key_and_value(tmp_pa
         load_settings(path)
 
 
-def test_a_file_without_one_of_the_three_filters_is_refused_naming_it(tmp_path):
+def test_a_file_without_one_of_the_filters_is_refused_naming_it(tmp_path):
     path = tmp_path / "kalman_tuned.json"
     path.write_text(json.dumps({"filters": {kind: TUNED[kind].to_dict() for kind in ("cv", "imm")}}))
     with pytest.raises(io.InputError, match=re.escape(f"{path}: filter 'ca': missing")):

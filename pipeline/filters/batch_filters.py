@@ -12,14 +12,15 @@ this module against it, step by step.
 
 A batch state holds, for B tracks and M motion models, the states x (B, M, n), covariances
 P (B, M, n, n) and mode probabilities mu (B, M) (M = 1 for a single Kalman filter, 2 for the
-IMM). The update is filterpy's: Joseph-form covariance and Gaussian likelihoods for the IMM,
-here in log space so a far-off plot cannot underflow every model at once.
+IMM, 3 for the IMM with turns). The update is filterpy's: Joseph-form covariance and Gaussian
+likelihoods for the IMM, here in log space so a far-off plot cannot underflow every model at once.
 
 One step is `mixed` (the IMM's mixing: each model's starting state and the predicted mode
 probabilities; nothing for a single filter), `moved` (x' = F x, P' = F P F' + Q) and `updated`
-(with a measurement z and its covariance R). F and Q (from `motion`) and R are arguments of
-every call and given per track, so each track can have its own time step, process noise and
-measurement covariance (the radar a plot comes from; a network scaling the noise later).
+(with a measurement z and its covariance R). F and Q (from `motion`, and `turned` for a model that
+turns about each track's own vertical) and R are arguments of every call and given per track, so each
+track can have its own time step, process noise and measurement covariance (the radar a plot comes
+from; a network scaling the noise later).
 
 Why it is written the way it is: tuning steps ~90 rows through ~1200 steps about a hundred
 times per filter, so a step works on ~90 small matrices per model and its cost is overhead (per
@@ -27,8 +28,8 @@ NumPy call, and per matrix in a stacked product), not arithmetic. `filter_sequen
 steps every row with one set of calls and repairs the few rows that restart or idle at a step
 afterwards, builds F and Q once per distinct time step (plot times are quantised, so a few dozen
 per evaluation) and gathers them, inverts the 3 x 3 innovation covariances by cofactors, mixes
-the IMM's two models in closed form, and combines the models' estimates for all steps at once
-after the loop. The results equal the step-by-step formulation (the tests' filterpy) to
+the IMM's two models in closed form (more in the general form), and combines the models' estimates
+for all steps at once after the loop. The results equal the step-by-step formulation (the tests' filterpy) to
 floating-point rounding.
 """
 
@@ -39,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.filters import motion_models
+from pipeline.filters import motion_models, turn_model
 from pipeline.filters.classical_filters import FilterSettings
 
 CHUNK_CELLS = 2 ** 14  # F and Q are tabulated for the distinct time steps of about this many (step, row) cells at once
@@ -63,17 +64,42 @@ class BatchState:
 def start(settings: FilterSettings, positions: np.ndarray, covariances: np.ndarray) -> BatchState:
     """Tracks started at one measurement each: positions (B, 3), covariances (B, 3, 3)."""
     pairs = [motion_models.initial_state(model, positions, covariances, settings.velocity_std_mps,
-                                         settings.acceleration_std_mps2) for model in settings.models]
-    probabilities = settings.initial_probabilities() if settings.kind == "imm" else np.ones(1)
+                                         settings.acceleration_std_mps2) for model in settings.motion_bases]
+    probabilities = settings.initial_probabilities() if settings.is_imm else np.ones(1)
     return BatchState(np.stack([x for x, _ in pairs], axis=1), np.stack([p for _, p in pairs], axis=1),
                       np.tile(probabilities, (len(positions), 1)))
 
 
 def motion(settings: FilterSettings, dt: np.ndarray) -> np.ndarray:
-    """Each model's transition F and process noise Q over dt of any shape: (*dt.shape, 2, M, n, n), F then Q."""
-    return np.stack([np.stack([motion_models.transition(model, dt) for model in settings.models], axis=-3),
+    """Each model's transition F and process noise Q over dt of any shape: (*dt.shape, 2, M, n, n), F then Q.
+    A turning model's F is its straight base's here (`FilterSettings.motion_bases`); `turned` turns it per track."""
+    return np.stack([np.stack([motion_models.transition(model, dt) for model in settings.motion_bases], axis=-3),
                      np.stack([motion_models.process_noise(model, dt, noise)
-                               for model, noise in zip(settings.models, settings.noise_std)], axis=-3)], axis=-4)
+                               for model, noise in zip(settings.motion_bases, settings.model_noise_std)], axis=-3)],
+                    axis=-4)
+
+
+def verticals(settings: FilterSettings, state: BatchState) -> np.ndarray | None:
+    """The local vertical (B, 3) at each track's first model's position in `state` (`turn_model.local_vertical`),
+    about which its turning models turn over the next step; None when no model turns. One per track and
+    step: the models' positions differ by metres, their verticals by 1e-6 rad. Taken from the posterior,
+    as filterpy's reference does (`classical_filters.advance`)."""
+    if not settings.turn_rates().any():
+        return None
+    return turn_model.local_vertical(state.x[:, 0, ::state.x.shape[-1] // 3])
+
+
+def turned(settings: FilterSettings, F: np.ndarray, dt: np.ndarray, up: np.ndarray | None) -> np.ndarray:
+    """F (B, M, n, n) of B tracks stepping dt (B,) seconds, with each turning model's transition made about
+    the track's vertical up (B, 3) (`verticals`; `turn_model.turning_transitions`); F itself when no
+    model turns."""
+    rates = settings.turn_rates()
+    turning = np.flatnonzero(rates)
+    if not len(turning):
+        return F
+    F = F.copy()
+    F[:, turning] = turn_model.turning_transitions(dt, rates[turning], up)
+    return F
 
 
 def _motion_per_step(settings: FilterSettings, dt: np.ndarray) -> Iterator[np.ndarray]:
@@ -99,17 +125,24 @@ def mixed(settings: FilterSettings, state: BatchState, each_alone: bool = False)
 
     IMMEstimator's mixing, x0_j = sum_i w_ij x_i and P0_j = sum_i w_ij (P_i + d_ij d_ij') with
     d_ij = x_i - x0_j, where w_ij = T_ij mu_i / cbar_j; for two models, whose weights w_0j + w_1j
-    are 1, the second sum is sum_i w_ij P_i + w_0j w_1j (x_0 - x_1)(x_0 - x_1)'."""
-    if settings.kind != "imm":
+    are 1, the second sum is sum_i w_ij P_i + w_0j w_1j (x_0 - x_1)(x_0 - x_1)' (fewer products),
+    for more the general form."""
+    if not settings.is_imm:
         return state
     transition = settings.transition_probabilities()
     cbar = (state.mu[:, None, :] @ transition)[:, 0] if each_alone else state.mu @ transition  # (B, M)
     weight = transition.T * state.mu[:, None, :] / cbar[:, :, None]                 # w_ij at [b, j, i]
-    spread = state.x[:, 0] - state.x[:, 1]                                          # (B, n)
     B, M, n = state.x.shape
-    P = (weight @ state.P.reshape(B, M, n * n)).reshape(state.P.shape) + \
-        (weight[:, :, 0] * weight[:, :, 1])[:, :, None, None] * (spread[:, None, :, None] * spread[:, None, None, :])
-    return BatchState(weight @ state.x, P, cbar)
+    P = (weight @ state.P.reshape(B, M, n * n)).reshape(state.P.shape)
+    x = weight @ state.x
+    if M == 2:
+        spread = state.x[:, 0] - state.x[:, 1]                                      # (B, n)
+        P = P + (weight[:, :, 0] * weight[:, :, 1])[:, :, None, None] * (spread[:, None, :, None]
+                                                                          * spread[:, None, None, :])
+    else:
+        offset = state.x[:, None, :, :] - x[:, :, None, :]                         # d_ij at [b, j, i]
+        P = P + np.einsum("bji,bjik,bjil->bjkl", weight, offset, offset)
+    return BatchState(x, P, cbar)
 
 
 def moved(state: BatchState, F: np.ndarray, Q: np.ndarray) -> BatchState:
@@ -152,7 +185,7 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
     innovation = z[:, None] - state.x[..., position]                                # (B, M, 3)
     if S_inverse is None:
         S_inverse, S_determinant = inverse3(HP[..., position] + R)                 # (B, M, 3, 3), (B, M)
-    elif settings.kind == "imm":
+    elif settings.is_imm:
         raise ValueError("updated: the IMM needs the innovation covariance's determinant; give no S_inverse")
     gain_T = S_inverse @ HP                                                         # K' = S^-1 H P: (B, M, 3, n)
     gain = gain_T.swapaxes(-1, -2)
@@ -160,7 +193,7 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
     JP = state.P - gain @ HP
     P = JP + (gain @ R - JP[..., :, position]) @ gain_T
     mu = state.mu
-    if settings.kind == "imm":
+    if settings.is_imm:
         distance = (innovation[..., None, :] @ S_inverse @ innovation[..., :, None])[..., 0, 0]  # (B, M)
         log_weight = np.log(state.mu) - 0.5 * (distance + np.log(S_determinant) + LOG_NORMALISER)
         weight = np.exp(log_weight - log_weight.max(axis=1, keepdims=True))
@@ -247,7 +280,8 @@ def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.
     model_x, model_P, model_mu = np.empty((T, B, M, 3)), np.empty((T, B, M, 3, 3)), np.empty((T, B, M))
     prior_x, prior_P, prior_mu = np.empty_like(model_x), np.empty_like(model_P), np.empty_like(model_mu)
     for step, step_motion in enumerate(_motion_per_step(settings, dt)):
-        prior = predicted(settings, state, step_motion[:, 0], step_motion[:, 1])
+        F = turned(settings, step_motion[:, 0], dt[step], verticals(settings, state))
+        prior = predicted(settings, state, F, step_motion[:, 1])
         prior_x[step], prior_P[step], prior_mu[step] = prior.x[..., position], prior.P[..., position, position], \
             prior.mu
         after = updated(settings, prior, z[step], R[step])
@@ -273,4 +307,5 @@ def filter_sequences(settings: FilterSettings, times: np.ndarray, positions: np.
 def predict_positions(settings: FilterSettings, state: BatchState, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Predicted positions (B, 3) and covariances (B, 3, 3) of posteriors dt (B,) seconds ahead."""
     F_and_Q = motion(settings, dt)
-    return position_estimates(predicted(settings, state, F_and_Q[:, 0], F_and_Q[:, 1]))
+    F = turned(settings, F_and_Q[:, 0], dt, verticals(settings, state))
+    return position_estimates(predicted(settings, state, F, F_and_Q[:, 1]))

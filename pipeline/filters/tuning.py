@@ -30,7 +30,8 @@ design value of the filter like its noise (Bar-Shalom, Li & Kirubarajan 2001, 11
 follows the expected sojourn time in each mode), so it is tuned too, by its log-odds within a
 factor of 1000 of the start odds: left at the usual 0.05, the IMM stays on its quiet CV model
 too long when a fighter starts a 6 deg/s turn and gates out the plot that would have switched it
-(measured on the test split: issue 13). The search stops when the values agree
+(measured on the test split: issue 13). The IMM with turns also tunes its turns' rate, by its logarithm
+within a factor of 1000 of the start rate, as the noise (issue 33). The search stops when the values agree
 to 1 % and the cost to 1e-3 (metres, or the NEES cost's relative units).
 """
 
@@ -192,12 +193,19 @@ def _tunes_switching(settings: FilterSettings) -> bool:
     return len(settings.models) > 1
 
 
+def _tunes_turns(settings: FilterSettings) -> bool:
+    return settings.turn_rate_dps > 0.0
+
+
 def _search_values(settings: FilterSettings) -> np.ndarray:
-    """The searched values: log noise values, log velocity spread and, for the IMM, the log-odds of switching."""
+    """The searched values: log noise values, log velocity spread and, for an IMM, the log-odds of switching,
+    and for the IMM with turns the log turn rate."""
     logs = np.log([*settings.noise_std, settings.velocity_std_mps])
-    if not _tunes_switching(settings):
-        return logs
-    return np.append(logs, special.logit(settings.switch_probability))
+    if _tunes_switching(settings):
+        logs = np.append(logs, special.logit(settings.switch_probability))
+    if _tunes_turns(settings):
+        logs = np.append(logs, np.log(settings.turn_rate_dps))
+    return logs
 
 
 def _settings_at(start: FilterSettings, searched: np.ndarray) -> FilterSettings:
@@ -206,6 +214,8 @@ def _settings_at(start: FilterSettings, searched: np.ndarray) -> FilterSettings:
     tuned = start.with_values(tuple(values[:noises]), values[noises])
     if _tunes_switching(start):
         tuned = replace(tuned, switch_probability=float(special.expit(searched[noises + 1])))
+    if _tunes_turns(start):
+        tuned = replace(tuned, turn_rate_dps=float(np.exp(searched[-1])))
     return tuned
 
 
@@ -214,6 +224,8 @@ def at_bounds(start: FilterSettings, tuned: FilterSettings) -> list[str]:
     names = [f"noise_std[{i}]" for i in range(len(start.noise_std))] + ["velocity_std_mps"]
     if _tunes_switching(start):
         names.append("switch_probability")
+    if _tunes_turns(start):
+        names.append("turn_rate_dps")
     distance = np.abs(_search_values(tuned) - _search_values(start))
     return [name for name, d in zip(names, distance) if d > SEARCH_RANGE - 1e-2]
 
@@ -251,7 +263,7 @@ def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: 
     if not result.success or not np.isfinite(result.fun):
         raise TuningError(f"{start.kind}: Nelder-Mead did not converge ({result.message}) after {result.nit} "
                           f"iterations; reached cost {result.fun:.6g} with noise {reached.noise_std} and "
-                          f"velocity spread {reached.velocity_std_mps:.6g}, switch probability {reached.switch_probability:.4g}; "
-                          "nothing saved")
+                          f"velocity spread {reached.velocity_std_mps:.6g}, switch probability "
+                          f"{reached.switch_probability:.4g}, turn rate {reached.turn_rate_dps:.4g} deg/s; nothing saved")
     after = assess(reached, material)
     return reached, before, after, evaluations

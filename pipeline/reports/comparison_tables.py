@@ -34,7 +34,7 @@ SCENE_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "
 
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 
-FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)"}
+FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)", "imm_ct": "IMM (CV + turns)"}
 
 SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
                "noise and clutter) flown past a radar at each site of `evaluate.sites` (`dvc repro evaluate_sites`, "
@@ -309,16 +309,18 @@ def holdout_table(holdout: dict) -> str:
 
 
 def tuning_table(tuning: dict) -> str:
-    lines = [f"| filter | process noise | velocity spread (m/s) | model switch probability | {tuning['cost']} before | "
-             "after | RMSE (m) | raw plots RMSE (m) | ANEES | ANEES 95 % bounds | NEES in chi-square 95 % | "
-             "target plots outside the gate |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [f"| filter | process noise | velocity spread (m/s) | model switch probability | turn rate (deg/s) | "
+             f"{tuning['cost']} before | after | RMSE (m) | raw plots RMSE (m) | ANEES | ANEES 95 % bounds | "
+             "NEES in chi-square 95 % | target plots outside the gate |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, values in tuning["filters"].items():
         after = values["after"]
         switching = f"{values['switch_probability']:.3g}" if len(values["noise_std"]) > 1 else "-"
+        turning = f"{values['turn_rate_dps']:.3g}" if values.get("turn_rate_dps") else "-"
         lines.append(
             f"| {FILTER_LABELS[kind]} | {', '.join(f'{v:.3g}' for v in values['noise_std'])} | "
-            f"{values['velocity_std_mps']:.0f} | {switching} | {values['cost_before']:.4g} | {values['cost_after']:.4g} | "
+            f"{values['velocity_std_mps']:.0f} | {switching} | {turning} | {values['cost_before']:.4g} | "
+            f"{values['cost_after']:.4g} | "
             f"{after['rmse_m']:.1f} | {after['plot_rmse_m']:.1f} | {after['anees']:.3f} | "
             f"{after['anees_bounds'][0]:.3f}-{after['anees_bounds'][1]:.3f} | {after['nees_in_95_interval']:.3f} | "
             f"{after['gate_misses']:.2%} (gate allows {after['gate_allowance']:.1%}) |")

@@ -1,12 +1,12 @@
-"""Stage `tune_kalman`: tune the classical filters (CV, CA, IMM) on a split's target plots.
+"""Stage `tune_kalman`: tune the classical filters (CV, CA, IMM, IMM with turns) on a split's target plots.
 
 Writes `models/kalman_tuned.json` (what the tracker and the comparison load) only when every
 filter tuned; `reports/kalman_tuning.json` has each filter's cost, error and NEES before and
 after. One MLflow run records the same.
 
-The three filters tune independently, so with `compute.workers` > 1 (or a Dask scheduler named
-by DASK_SCHEDULER_ADDRESS) they run on the bench's engine (`pipeline.bench.engine`), the IMM first
-because it takes about as long as the other two together. Every filter gets the same inputs
+The filters tune independently, so with `compute.workers` > 1 (or a Dask scheduler named
+by DASK_SCHEDULER_ADDRESS) they run on the bench's engine (`pipeline.bench.engine`), the IMMs first
+because each takes longer than the other two together. Every filter gets the same inputs
 wherever it runs and the results are gathered by kind, so the outputs do not depend on it (only
 the `seconds` in the report do). The workers' log lines go through the stage's logging.
 """
@@ -20,21 +20,22 @@ from pathlib import Path
 from pipeline import io
 from pipeline.bench import engine
 from pipeline.filters import tuning
-from pipeline.filters.classical_filters import KINDS, FilterSettings
+from pipeline.filters.classical_filters import KINDS, TURNING_KINDS, FilterSettings
 from pipeline.learning import experiment_tracking
 from pipeline.params import Params
 from pipeline.simulation import simulate
 
 log = logging.getLogger("pipeline")
 
-LONGEST_FIRST = ("imm", "ca", "cv")  # submission order: each worker takes the next when it is free
+LONGEST_FIRST = ("imm_ct", "imm", "ca", "cv")  # submission order: each worker takes the next when it is free
 
 
 def start_settings(kind: str, params: Params) -> FilterSettings:
     """The filter as params describe it before tuning."""
     k = params.kalman
     return FilterSettings(kind, k.noise_std[kind], k.velocity_std_mps, k.acceleration_std_mps2,
-                          k.imm_switch_probability, k.imm_initial_cv_probability)
+                          k.imm_switch_probability, k.imm_initial_cv_probability,
+                          k.imm_ct_turn_rate_dps if kind in TURNING_KINDS else 0.0)
 
 
 def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, max_iterations: int
@@ -45,7 +46,7 @@ def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, ma
     settings, before, after, evaluations = tuning.tune(start, material, cost, max_iterations)
     return settings, {
         "noise_std": list(settings.noise_std), "velocity_std_mps": settings.velocity_std_mps,
-        "switch_probability": settings.switch_probability,
+        "switch_probability": settings.switch_probability, "turn_rate_dps": settings.turn_rate_dps,
         "at_search_bound": tuning.at_bounds(start, settings),
         "cost_before": before.cost(cost), "cost_after": after.cost(cost),
         "before": before.to_dict(), "after": after.to_dict(), "cost_evaluations": evaluations,
@@ -55,10 +56,11 @@ def tune_filter(start: FilterSettings, material: tuning.Sequences, cost: str, ma
 def _log_tuned(kind: str, entry: dict) -> None:
     after = entry["after"]
     log.info("tune_kalman %s: cost %.4g -> %.4g, RMSE %.1f m (plots %.1f m), ANEES %.3f (95 %% bounds %.3f-%.3f), "
-             "noise %s, velocity spread %.1f m/s, switch probability %.4g, %d evaluations, %.1f s", kind,
-             entry["cost_before"], entry["cost_after"], after["rmse_m"], after["plot_rmse_m"], after["anees"],
+             "noise %s, velocity spread %.1f m/s, switch probability %.4g, turn rate %.3g deg/s, %d evaluations, "
+             "%.1f s",
+             kind, entry["cost_before"], entry["cost_after"], after["rmse_m"], after["plot_rmse_m"], after["anees"],
              *after["anees_bounds"], [round(v, 4) for v in entry["noise_std"]], entry["velocity_std_mps"],
-             entry["switch_probability"], entry["cost_evaluations"], entry["seconds"])
+             entry["switch_probability"], entry["turn_rate_dps"], entry["cost_evaluations"], entry["seconds"])
 
 
 def _tasks(params: Params, material: tuning.Sequences) -> dict[str, tuple]:

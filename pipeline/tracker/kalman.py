@@ -8,13 +8,13 @@ predicted mode probabilities (`batch_filters.mixed`), a single filter's posterio
 filter is started at its first plot, with the velocity unknown up to the tuned spread, when
 the track is first predicted (clutter tracks, most of them, never are). The filters run in
 ECEF: with the same noise on every axis this is the same as a local east-north-up frame
-(`pipeline.filters.motion_models`).
+(`pipeline.filters.motion_models`), and a turning model turns about each track's own vertical.
 
 `predict` moves the candidate tracks' filters to the plot's time in one batch (F and Q made
-once per distinct time step, plot times being quantised) and gives the combined position and
-its covariance (the IMM's own predicted density, mixed with the predicted mode probabilities);
-`update` resumes from that prediction's state with the plot's own measurement covariance (its
-radar's) and stores the result.
+once per distinct time step, plot times being quantised; a turning model's per track, about
+the vertical at its last update) and gives the combined position and its covariance (the IMM's
+own predicted density, mixed with the predicted mode probabilities); `update` resumes from that
+prediction's state with the plot's own measurement covariance (its radar's) and stores the result.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ class KalmanEstimator:
         self.mu = np.zeros((capacity, models))
         self.time = np.zeros(capacity)
         self.started = np.zeros(capacity, dtype=bool)
+        self.up = np.zeros((capacity, 3))  # the vertical a turning model turns about next (`batch_filters.verticals`)
         self._motions = np.empty((0, 2, models, size, size))  # F and Q of the time steps in `_motion_code`, in order
         self._motion_code: dict[float, int] = {}
 
@@ -57,14 +58,23 @@ class KalmanEstimator:
         self.mu = np.concatenate([self.mu, np.zeros((extra, *self.mu.shape[1:]))])
         self.time = np.concatenate([self.time, np.zeros(extra)])
         self.started = np.concatenate([self.started, np.zeros(extra, dtype=bool)])
+        self.up = np.concatenate([self.up, np.zeros((extra, 3))])
 
     def start(self, tracks: LiveTracks, slot: int) -> None:
         if slot >= len(self.time):
             self._grow(len(tracks.tracks))
         self.started[slot] = False
 
-    def _store(self, slots: np.ndarray | slice, state: BatchState, time: np.ndarray | float) -> None:
+    def _store(self, slots: np.ndarray | slice, posterior: BatchState, time: np.ndarray | float,
+               each_alone: bool = True) -> None:
+        """The posterior's mixed models (what the next prediction starts from; `each_alone` as in
+        `batch_filters.mixed`) and, for a turning model, the vertical at the posterior
+        (`batch_filters.verticals`)."""
+        state = batch_filters.mixed(self.settings, posterior, each_alone=each_alone)
         self.x[slots], self.P[slots], self.mu[slots], self.time[slots] = state.x, state.P, state.mu, time
+        up = batch_filters.verticals(self.settings, posterior)
+        if up is not None:
+            self.up[slots] = up
 
     def _start_filters(self, tracks: LiveTracks, slots: np.ndarray) -> None:
         """Start the filters of the tracks at `slots`, not started yet, at their first plots."""
@@ -72,7 +82,7 @@ class KalmanEstimator:
         rows = [tracks.tracks[slot].rows[0] for slot in fresh]
         plots = tracks.plots
         first = batch_filters.start(self.settings, plots.position[rows], plots.covariance[rows])
-        self._store(fresh, batch_filters.mixed(self.settings, first), plots.time[rows])
+        self._store(fresh, first, plots.time[rows], each_alone=False)
         self.started[fresh] = True
 
     def _motion(self, steps: list[float]) -> np.ndarray:
@@ -105,9 +115,11 @@ class KalmanEstimator:
         started = self.started.take(slots)
         if np.count_nonzero(started) < len(slots):
             self._start_filters(tracks, slots[~started])
-        motion = self._motion((time - self.time.take(slots)).tolist())
+        dt = time - self.time.take(slots)
+        motion = self._motion(dt.tolist())
+        F = batch_filters.turned(self.settings, motion[:, 0], dt, self.up.take(slots, axis=0))
         state = batch_filters.moved(BatchState(self.x.take(slots, axis=0), self.P.take(slots, axis=0),
-                                               self.mu.take(slots, axis=0)), motion[:, 0], motion[:, 1])
+                                               self.mu.take(slots, axis=0)), F, motion[:, 1])
         return Prediction(*batch_filters.position_estimates(state), state)
 
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
@@ -143,5 +155,5 @@ class KalmanEstimator:
                                                                     moved.mu[indices]),
                                           plots.position[rows], plots.covariance[rows],
                                           inverse[indices][:, None] if single else None)
-        self._store(slots, batch_filters.mixed(self.settings, posterior, each_alone=True), plots.time[rows])
+        self._store(slots, posterior, plots.time[rows])
         return batch_filters.position_estimates(posterior)
