@@ -148,3 +148,20 @@ def test_the_tracker_table_labels_a_run_by_its_rule_and_keeps_the_others():
     assert [row.split(" | ")[0] for row in rows] == ["| VIA 4000", "| IMM 4000", "| IMM 4000, m_of_n"]
     gnn = declared_runs(tf.make_params())["imm_gnn_4000_m_of_n"]
     assert (gnn.method, gnn.window_m, gnn.management, gnn.family) == ("imm_gnn", 4000.0, "m_of_n", registry.CLASSICAL)
+
+
+def test_initiation_table_per_rule_fastest_first_with_false_tracks_per_hour_and_its_picture():
+    """The comparison's track-initiation section: each tracker run under its rule (the default params' rule for
+    a run that names none), fastest first, false tracks per flying hour; the raw plots' reference, no tracker,
+    is left out; the picture is a PNG."""
+    from pipeline.reports import comparison_tables, figures
+
+    runs = tf.run_records({
+        "imm_4000": {"initiation_mean_s": 23.2, "initiation_p95_s": 42.0, "false_tracks": 1.0},
+        "imm_4000_m_of_n": {"initiation_mean_s": 14.8, "initiation_p95_s": 24.0, "false_tracks": 75.0},
+        "plots_reference": {"initiation_mean_s": 1.1, "initiation_p95_s": 6.0, "false_tracks": 0.0},
+        "via_4000": {"OSPA": 250.0}})
+    rows = comparison_tables.initiation_rows(runs, "thesis", 50.0)
+    assert comparison_tables.initiation_table(rows).splitlines()[2:] == [
+        "| imm_4000_m_of_n | m_of_n | 14.8 | 24 | 1.50 |", "| imm_4000 | thesis | 23.2 | 42 | 0.02 |"]
+    assert figures.initiation_picture(rows).startswith(b"\x89PNG")

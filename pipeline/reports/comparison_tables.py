@@ -146,6 +146,39 @@ CONTINUITY_INTRO = (
 
 
 
+INITIATION_TITLE = "Track initiation"
+INITIATION_PICTURE = "initiation.png"
+
+
+def initiation_intro(hours: float) -> str:
+    return ("How long an aircraft waits for its first confirmed update against how many false tracks a rule lets "
+            "through, for every run under each track management rule (the thesis's weights, or M of N with "
+            "time-out deletion for the runs named `_m_of_n`; `tracker.management.rule`). Initiation time: from "
+            "the start of an aircraft's first stretch in coverage to its first confirmed update, mean and 95th "
+            "percentile over the aircraft (the scorecard's, `pipeline/surveillance/scorecard.py`); false tracks: "
+            "confirmed tracks on no aircraft, per hour of the test routes' flying time "
+            f"({hours:.1f} h per draw, `reports/data.json`). Faster at fewer false tracks is better: down and left "
+            "in the picture; each line joins one method's two rules.")
+
+
+def initiation_rows(runs: Mapping[Run, dict], default_rule: str, hours: float) -> list[tuple[Run, str, float, float,
+                                                                                            float]]:
+    """(run, rule, initiation mean s, its 95th percentile s, false tracks per hour) of every tracker run
+    with an initiation time (the raw plots' reference is no tracker), fastest first."""
+    rows = [(run, run.management or default_rule, values["initiation_mean_s"], values["initiation_p95_s"],
+             values["false_tracks"] / hours)
+            for run, values in runs.items() if run.method != "plots" and values.get("initiation_mean_s") is not None]
+    return sorted(rows, key=lambda row: (row[2], row[4], row[0].name))
+
+
+def initiation_table(rows: list[tuple[Run, str, float, float, float]]) -> str:
+    lines = ["| tracker | rule | initiation mean (s) | initiation 95th percentile (s) | false tracks per hour |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {run.name} | {rule} | {mean:.1f} | {p95:.0f} | {per_hour:.2f} |"
+              for run, rule, mean, p95, per_hour in rows]
+    return "\n".join(lines)
+
+
 def continuity_table(runs: Mapping[Run, dict], by_strategy: dict[str, dict]) -> str:
     """Tracks per aircraft and ROCA of every run (references first, then by method, window and
     rule, so a run under both rules is two adjacent rows), over all routes and per strategy

@@ -98,6 +98,33 @@ def comparison_picture(runs: Mapping[Run, dict], intervals: Mapping[str, Mapping
     return png(figure)
 
 
+def initiation_picture(rows: list[tuple[Run, str, float, float, float]]) -> bytes:
+    """Initiation time (mean, s) against false tracks per hour, a dot per run (`comparison_tables.initiation_rows`),
+    coloured by family, shaped by track management rule, one method's runs under different rules joined: a
+    rule trades one for the other, and a tracker that is faster at no more false tracks lies down and left.
+    The false-track axis is linear up to 0.01 per hour and logarithmic beyond (most runs have almost none)."""
+    figure, axis = plt.subplots(figsize=(9, 6))
+    markers = dict(zip(sorted({rule for _, rule, *_ in rows}), "osD^v"))
+    by_method: dict[tuple[str, float], list[tuple[float, float]]] = {}
+    for run, rule, mean, _, per_hour in rows:
+        axis.plot(per_hour, mean, markers[rule], color=FAMILY_COLOURS[run.family], markersize=7, alpha=0.85)
+        axis.annotate(run.name, (per_hour, mean), fontsize=6, xytext=(4, 2), textcoords="offset points")
+        by_method.setdefault((run.method, run.window_m), []).append((per_hour, mean))
+    for points in by_method.values():
+        if len(points) > 1:
+            axis.plot(*zip(*sorted(points)), color="grey", linewidth=0.8, alpha=0.6)
+    for rule, marker in markers.items():
+        axis.plot([], [], marker, color="black", label=f"rule: {rule}")
+    axis.set_xscale("symlog", linthresh=0.01, linscale=0.3)
+    axis.set_xlabel("false tracks per hour of flying")
+    axis.set_ylabel("initiation time, mean (s)")
+    axis.set_title("Track initiation: blue neural, orange classical, grey references", loc="left", fontsize=9)
+    axis.grid(alpha=0.3, which="both")
+    axis.legend(fontsize=8, loc="upper right")
+    figure.tight_layout()
+    return png(figure)
+
+
 def ospa_distribution(per_scan: Mapping[Run, np.ndarray], cutoff: float) -> bytes:
     """Share of scans at or below each OSPA, one line per tracker (dashed: the references): where
     the mean hides whether a tracker is often slightly off or sometimes missing (OSPA at the cutoff)."""

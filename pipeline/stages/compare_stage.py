@@ -48,6 +48,8 @@ from pipeline.reports.comparison_tables import (
     GOSPA_INTRO,
     GOSPA_METRICS,
     GRADIENT_LABELS,
+    INITIATION_PICTURE,
+    INITIATION_TITLE,
     SCALED_INTRO,
     SCALED_TITLE,
     SCENES_TITLE,
@@ -57,6 +59,9 @@ from pipeline.reports.comparison_tables import (
     continuity_table,
     gospa_table,
     holdout_table,
+    initiation_intro,
+    initiation_rows,
+    initiation_table,
     scaled_filter_tables,
     scaled_verdict,
     scenes_detail,
@@ -181,6 +186,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
                   "pcrb_horizontal_rms_m": tracker.get("pcrb_horizontal_rms_m")}
     site_part = sites_section(sites, runs, site_metrics)
     gospa_part = gospa_table(runs)
+    hours = _read_json(reports_dir / "data.json", "data_report")[params.evaluate.split]["flight_hours"]
+    initiation = initiation_rows(runs, params.tracker.management.rule, hours)
     card_part = scorecard_blocks(comparison["trackers"], intervals["trackers"].get("runs"),
                                  f"the {params.evaluate.split} routes", comparison["pcrb_horizontal_rms_m"])
     text = "\n\n".join([
@@ -200,6 +207,8 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         *(["## GOSPA and its parts", f"{GOSPA_INTRO} Cutoff {params.evaluate.gospa_cutoff_m:.0f} m, order "
             f"{params.evaluate.gospa_order:g}; best GOSPA first.", gospa_part] if gospa_part else []),
         *([f"## {SCORECARD_TITLE}", *card_part] if card_part else []),
+        f"## {INITIATION_TITLE}", initiation_intro(hours), initiation_table(initiation),
+        f"![Initiation time against false tracks per hour]({INITIATION_PICTURE})",
         f"## {SCENES_TITLE}", scenes_intro(comparison["scenes"], params.evaluate.gospa_cutoff_m,
                                            params.evaluate.gospa_order),
         scenes_table(with_records(comparison["scenes"]["runs"], declared, reports_dir / "scene_metrics.json")),
@@ -219,4 +228,5 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     io.write_text(text, reports_dir / "comparison.md")
     io.write_bytes(picture, reports_dir / "comparison.png")
     io.write_bytes(noise_picture, reports_dir / "noise_scales.png")
+    io.write_bytes(figures.initiation_picture(initiation), reports_dir / INITIATION_PICTURE)
 
