@@ -108,7 +108,7 @@ def scans_allowed_outside(scans: int) -> int:
 STRAIGHT = np.zeros(SCANS - 1)
 TURNING = np.full(SCANS - 1, 3.0)  # 3 deg/s at 200 m/s: 10.5 m/s^2 of centripetal acceleration
 MATCHED = {"cv": (8.0,), "ca": (3.0,), "imm": (1.0, 3.0)}  # noise that covers a 3 deg/s turn
-BATCH_NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0), "imm_ct": (1.0, 2.0)}  # the batched twin's checks
+BATCH_NOISE = {"cv": (5.0,), "ca": (2.0,), "imm": (1.0, 3.0), "imm_ct": (1.0, 2.0), "imm_ca_ct": (1.0, 3.0, 2.0)}  # the batched twin's checks
 FLAT_FRAME_KINDS = tuple(kind for kind in classical_filters.KINDS if kind not in classical_filters.TURNING_KINDS)
 
 
@@ -604,6 +604,7 @@ def test_constant_acceleration_transition_moves_a_state_exactly():
     ("imm_initial_cv_probability", 1.5),
     ("restart_gap_s", 0.0),
     ("imm_ct_noise_std", [1.0, 1.0, 1.0]),
+    ("imm_ca_ct_noise_std", [1.0, 3.0]),
     ("imm_ct_turn_rate_dps", 0.0),
 ])
 def test_kalman_params_reject_bad_values_naming_the_key(params_tree, key, value):
@@ -641,7 +642,7 @@ def tracking_uri(tmp_path_factory) -> str:
 
 
 def test_tune_stage_saves_tuned_filters_and_a_report(simulated_split, tracking_uri, tmp_path, monkeypatch):
-    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the four tuned
+    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the five tuned
     filters, reports/kalman_tuning.json has each filter's cost before and after (not higher after),
     and one MLflow run records them."""
     import mlflow
@@ -695,7 +696,7 @@ def test_tune_stage_with_an_unreachable_scheduler_stops_naming_it_and_saves_noth
 
 def test_tune_stage_gives_the_same_files_with_one_and_two_workers(simulated_split, make_params, tracking_uri,
                                                                   tmp_path, monkeypatch, caplog):
-    """compute.workers = 1 tunes the three filters in the stage's process, 2 on a local Dask cluster of
+    """compute.workers = 1 tunes the filters in the stage's process, 2 on a local Dask cluster of
     two worker processes: models/kalman_tuned.json is byte for byte the same, and so is reports/kalman_tuning.json
     but for each filter's `seconds`. The workers' progress lines reach the stage's log."""
     _, simulated = simulated_split

@@ -19,6 +19,7 @@ TUNED = {
     "ca": FilterSettings("ca", (0.3,), 400.0, 10.0, 0.05, 0.9),
     "imm": FilterSettings("imm", (0.8, 0.47), 122.0, 10.0, 0.05, 0.9),
     "imm_ct": FilterSettings("imm_ct", (0.8, 1.9), 122.0, 10.0, 0.05, 0.9, 4.2),
+    "imm_ca_ct": FilterSettings("imm_ca_ct", (0.8, 0.47, 1.9), 122.0, 10.0, 0.05, 0.9, 4.2),
 }
 
 
@@ -34,7 +35,7 @@ def tuned_file(folder: Path, **changes: dict) -> Path:
     return path
 
 
-def test_the_tune_stages_file_loads_as_its_four_filters(tmp_path):
+def test_the_tune_stages_file_loads_as_its_five_filters(tmp_path):
     assert load_settings(tuned_file(tmp_path)) == TUNED
 
 
@@ -63,6 +64,8 @@ def test_probabilities_at_their_bounds_are_accepted(tmp_path):
     ("imm_ct", {"noise_std": [0.8, 1.9, 1.9]}, "filter 'imm_ct', noise_std = [0.8, 1.9, 1.9]: must list 2 standard "
                                                "deviation(s), one per motion model ('cv9', 'ct')"),
     ("imm", {"turn_rate_dps": 3.0}, "filter 'imm', turn_rate_dps = 3.0: must be 0, imm has no turning model"),
+    ("imm_ca_ct", {"noise_std": [0.8, 1.9]}, "filter 'imm_ca_ct', noise_std = [0.8, 1.9]: must list 3 standard "
+                                             "deviation(s), one per motion model ('cv9', 'ca', 'ct')"),
     ("cv", {"turn_rate_dps": None}, "filter 'cv': key 'turn_rate_dps' missing"),
 ])
 def test_a_value_out_of_range_is_refused_naming_file_filter_key_and_value(tmp_path, kind, entries, named):

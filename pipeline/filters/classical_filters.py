@@ -16,7 +16,9 @@ Two IMMs, each filterpy's `IMMEstimator` over models in one 9-entry state (see
 - `imm_ct` (issue 33): a constant-velocity model and two coordinated turns of a known rate, one each way
   (`pipeline.filters.turn_model`), the classical IMM for manoeuvring aircraft (Bar-Shalom, Li &
   Kirubarajan 2001, 11.7.3: CV with left and right turns of a design rate). The turns share one process
-  noise and their rate is tuned. CV + CA + CT was not measured.
+  noise and their rate is tuned.
+- `imm_ca_ct` (issue 33): the same with the constant-acceleration model too, for the speed changes and
+  climbs a turn model does not follow (measured beside `imm_ct`: the comparison has both).
 A turning model's transition depends on the track's vertical, so it is made per track at each step
 (`turn_transition`); its process noise is `cv9`'s.
 
@@ -38,19 +40,20 @@ from filterpy.kalman import IMMEstimator, KalmanFilter
 from pipeline.filters import motion_models, turn_model
 from pipeline.io import InputError
 
-KINDS = ("cv", "ca", "imm", "imm_ct")
+KINDS = ("cv", "ca", "imm", "imm_ct", "imm_ca_ct")
 TURN = "ct"  # a coordinated turn of the kind's turn rate, alternately left and right (`turn_model`)
-MODELS = {"cv": ("cv",), "ca": ("ca",), "imm": ("cv9", "ca"), "imm_ct": ("cv9", TURN, TURN)}
-NOISE_VALUES = {"cv": 1, "ca": 1, "imm": 2, "imm_ct": 2}  # imm_ct: its CV model's and its turns' (one for both)
+MODELS = {"cv": ("cv",), "ca": ("ca",), "imm": ("cv9", "ca"), "imm_ct": ("cv9", TURN, TURN),
+          "imm_ca_ct": ("cv9", "ca", TURN, TURN)}
+NOISE_VALUES = {kind: len(dict.fromkeys(models)) for kind, models in MODELS.items()}  # the turns share one
 TURNING_KINDS = tuple(kind for kind, models in MODELS.items() if TURN in models)
 
 
 @dataclass(frozen=True)
 class FilterSettings:
     """One classical filter. `noise_std` has one entry per motion model of the kind (cv: acceleration m/s^2;
-    ca: acceleration increments m/s^3; imm: both, in that order), except `imm_ct`'s two turns, which share
-    one (its CV model's, then the turns' white acceleration, m/s^2). `turn_rate_dps`: the turns' rate,
-    deg/s (0 for a kind without turns)."""
+    ca: acceleration increments m/s^3; imm: both, in that order), except the two turns, which share one
+    (white acceleration, m/s^2, after the others: `imm_ct` CV then turns, `imm_ca_ct` CV, CA, turns).
+    `turn_rate_dps`: the turns' rate, deg/s (0 for a kind without turns)."""
 
     kind: str
     noise_std: tuple[float, ...]
@@ -85,7 +88,7 @@ class FilterSettings:
 
     @property
     def model_noise_std(self) -> tuple[float, ...]:
-        """Each model's process noise: `noise_std`, the turns' one value repeated for each turn."""
+        """Each model's process noise: `noise_std`, the turns' one value (the last) repeated for each turn."""
         return tuple(self.noise_std[min(index, len(self.noise_std) - 1)] for index in range(len(self.models)))
 
     def turn_rates(self) -> np.ndarray:
@@ -137,7 +140,7 @@ def load_settings(path) -> dict[str, FilterSettings]:
     """The tuned filters saved by the tune stage, by kind, every value checked.
 
     The file may be edited by hand or damaged, and a filter takes any number: a negative
-    probability or spread does not fail, it changes every track silently. So each of the three
+    probability or spread does not fail, it changes every track silently. So each of the
     filters must be there with every key of `FilterSettings`, its probabilities in [0, 1], its
     standard deviations finite and above 0, and its turn rate above 0 for a kind with turns, 0 for the
     others; otherwise InputError names the file, the filter, the key and the value."""

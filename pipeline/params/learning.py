@@ -86,7 +86,7 @@ class Training(Section):
 
 def _noise_starts(tree: Mapping[str, Any], key: str, path: str, context: Mapping[str, Any]) -> dict:
     noise = {}
-    for kind, count in (("cv", 1), ("ca", 1), ("imm", 2), ("imm_ct", 2)):
+    for kind, count in (("cv", 1), ("ca", 1), ("imm", 2), ("imm_ct", 2), ("imm_ca_ct", 3)):
         values = get(tree, f"{kind}_noise_std", path)
         if (not isinstance(values, list) or len(values) != count
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in values)):
@@ -112,12 +112,13 @@ class Kalman(Section):
     noise_std: Mapping[str, tuple[float, ...]] = positive(
         "start values of the process noise (tuned): CV white acceleration m/s^2 [one]; CA acceleration increments "
         "m/s^3 [one]; IMM its CV (m/s^2) and its CA model (m/s^3) [two]; IMM with turns its CV model and its two "
-        "turns (m/s^2, one for both) [two]", keys=("cv_noise_std", "ca_noise_std", "imm_noise_std", "imm_ct_noise_std"),
+        "turns (m/s^2, one for both) [two]; IMM with CA and turns its CV, CA and turns [three]",
+        keys=("cv_noise_std", "ca_noise_std", "imm_noise_std", "imm_ct_noise_std", "imm_ca_ct_noise_std"),
         read=_noise_starts)
     imm_switch_probability: float = knob("IMM: chance of changing model between two updates (start value; tuned)",
                                          0.0, 1.0, open_low=True, open_high=True)
     imm_initial_cv_probability: float = knob("IMM: a new track starts as mostly CV", 0.0, 1.0)
-    imm_ct_turn_rate_dps: float = positive("IMM with turns (issue 33): its left and right turns' rate, deg/s "
+    imm_ct_turn_rate_dps: float = positive("IMMs with turns (issue 33): their left and right turns' rate, deg/s "
                                            "(start value; tuned)")
 
 

@@ -34,7 +34,8 @@ SCENE_METRICS = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "
 
 MAE_MIN_ROCA = 0.9  # MAE counts confirmed associations only: a tracker that keeps few plots can look precise
 
-FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)", "imm_ct": "IMM (CV + turns)"}
+FILTER_LABELS = {"cv": "Kalman CV", "ca": "Kalman CA", "imm": "IMM (CV + CA)", "imm_ct": "IMM (CV + turns)",
+                 "imm_ca_ct": "IMM (CV + CA + turns)"}
 
 SITES_INTRO = ("The same routes (same seeds: the same manoeuvres in the radar's east-north frame, the same radar "
                "noise and clutter) flown past a radar at each site of `evaluate.sites` (`dvc repro evaluate_sites`, "

@@ -27,7 +27,7 @@ from pipeline.simulation import simulate
 
 log = logging.getLogger("pipeline")
 
-LONGEST_FIRST = ("imm_ct", "imm", "ca", "cv")  # submission order: each worker takes the next when it is free
+LONGEST_FIRST = ("imm_ca_ct", "imm_ct", "imm", "ca", "cv")  # submission order: each worker takes the next when it is free
 
 
 def start_settings(kind: str, params: Params) -> FilterSettings:

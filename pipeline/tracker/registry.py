@@ -186,7 +186,8 @@ def _classical_methods() -> list[Method]:
     methods = []
     for global_nearest in (False, True):
         for base, kind, label, cost in (("kalman_cv", "cv", "Kalman CV", 1.5), ("kalman_ca", "ca", "Kalman CA", 1.5),
-                                        ("imm", "imm", "IMM", 2.0), ("imm_ct", "imm_ct", "IMM with turns", 3.0)):
+                                        ("imm", "imm", "IMM", 2.0), ("imm_ct", "imm_ct", "IMM with turns", 3.0),
+                                        ("imm_ca_ct", "imm_ca_ct", "IMM with CA and turns", 4.0)):
             name = base + GLOBAL_SUFFIX if global_nearest else base
             methods.append(Method(name, label + " + GNN" if global_nearest else label, CLASSICAL, (TUNED_FILTERS,),
                                   _classical(name, kind, global_nearest), cost * 1.1 if global_nearest else cost,
