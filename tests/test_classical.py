@@ -606,6 +606,9 @@ def test_constant_acceleration_transition_moves_a_state_exactly():
     ("imm_ct_noise_std", [1.0, 1.0, 1.0]),
     ("imm_ca_ct_noise_std", [1.0, 3.0]),
     ("imm_ct_turn_rate_dps", 0.0),
+    ("filters", ["cv", "ca"]),
+    ("filters", ["cv", "ca", "imm", "imm"]),
+    ("filters", ["cv", "ca", "imm", "singer"]),
 ])
 def test_kalman_params_reject_bad_values_naming_the_key(params_tree, key, value):
     """params.yaml's `kalman` section: a bad value is a ParamError that names kalman.<key>."""
@@ -642,8 +645,8 @@ def tracking_uri(tmp_path_factory) -> str:
 
 
 def test_tune_stage_saves_tuned_filters_and_a_report(simulated_split, tracking_uri, tmp_path, monkeypatch):
-    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the five tuned
-    filters, reports/kalman_tuning.json has each filter's cost before and after (not higher after),
+    """tune_kalman on a tiny simulated split: models/kalman_tuned.json loads as the tuned filters
+    of kalman.filters, reports/kalman_tuning.json has each filter's cost before and after (not higher after),
     and one MLflow run records them."""
     import mlflow
 
@@ -652,11 +655,11 @@ def test_tune_stage_saves_tuned_filters_and_a_report(simulated_split, tracking_u
     run_tune(params, simulated, tmp_path / "models", tmp_path / "reports")
 
     filters = classical_filters.load_settings(tmp_path / "models" / "kalman_tuned.json")
-    assert set(filters) == set(classical_filters.KINDS)
+    assert set(filters) == set(params.kalman.filters) == {"cv", "ca", "imm", "imm_ct"}
     assert all(filters[kind].kind == kind for kind in filters)
     report = json.loads((tmp_path / "reports" / "kalman_tuning.json").read_text())
     assert report["cost"] == params.kalman.cost
-    for kind in classical_filters.KINDS:
+    for kind in params.kalman.filters:
         entry = report["filters"][kind]
         assert entry["cost_after"] <= entry["cost_before"]
         assert entry["noise_std"] == list(filters[kind].noise_std)
@@ -713,5 +716,6 @@ def test_tune_stage_gives_the_same_files_with_one_and_two_workers(simulated_spli
     assert outputs[1][0] == outputs[2][0]
     assert outputs[1][1] == outputs[2][1]
     heads = {(record.getMessage().split(":")[0], record.processName == "MainProcess") for record in caplog.records}
-    assert {(f"tune_kalman {kind}", True) for kind in classical_filters.KINDS} <= heads  # each result as it arrives
-    assert {(f"tune {kind}", False) for kind in classical_filters.KINDS} <= heads       # progress, from the workers
+    tuned = make_params(1).kalman.filters
+    assert {(f"tune_kalman {kind}", True) for kind in tuned} <= heads  # each result as it arrives
+    assert {(f"tune {kind}", False) for kind in tuned} <= heads       # progress, from the workers

@@ -24,6 +24,7 @@ import pytest
 from pipeline import cli, io
 from pipeline.association import association_net, track_tables
 from pipeline.bench import association_report
+from pipeline.filters import classical_filters
 from pipeline.geometry import geodesy
 from pipeline.learning import experiment_tracking, model_store
 from pipeline.recordings import external_sort, plot_table, streamed_recording
@@ -210,6 +211,18 @@ def test_a_classical_method_without_tuned_filters_names_the_file_and_stage(param
     with pytest.raises(io.InputError, match=r"kalman_tuned.json: file not found; imm_gnn needs it .*"
                                             r"dvc repro tune_kalman"):
         load_models(tmp_path, params, ["imm_gnn"])
+
+
+def test_a_method_whose_filter_kalman_filters_left_out_names_the_knob(params, tmp_path):
+    """imm_ca_ct is not tuned by default (kalman.filters): its method is refused before tracking, saying how."""
+    tuned = {kind: classical_filters.FilterSettings(kind, (1.0,) * classical_filters.NOISE_VALUES[kind], 100.0, 10.0,
+                                                    0.05, 0.9, 3.0 if kind in classical_filters.TURNING_KINDS else 0.0
+                                                    ).to_dict() for kind in ("cv", "ca", "imm", "imm_ct")}
+    (tmp_path / "kalman_tuned.json").write_text(json.dumps({"filters": tuned}))
+    assert load_models(tmp_path, params, ["imm_ct_gnn"])
+    with pytest.raises(io.InputError, match=r"kalman_tuned.json: has no tuned imm_ca_ct filter, which imm_ca_ct_gnn "
+                                            r"runs \(list imm_ca_ct in kalman.filters and run `dvc repro tune_kalman`\)"):
+        load_models(tmp_path, params, ["imm_ca_ct_gnn"])
 
 
 def test_an_unknown_method_names_the_registered_ones(params, tmp_path):

@@ -81,6 +81,13 @@ def test_a_file_without_one_of_the_filters_is_refused_naming_it(tmp_path):
         load_settings(path)
 
 
+def test_the_filters_kalman_filters_may_add_may_be_absent(tmp_path):
+    """kalman.filters leaves the IMMs with turns out by default: a file without them loads, without them."""
+    path = tmp_path / "kalman_tuned.json"
+    path.write_text(json.dumps({"filters": {kind: TUNED[kind].to_dict() for kind in ("cv", "ca", "imm", "imm_ct")}}))
+    assert list(load_settings(path)) == ["cv", "ca", "imm", "imm_ct"]
+
+
 def test_a_missing_file_says_which_stage_makes_it(tmp_path):
     with pytest.raises(io.InputError, match=r"kalman_tuned.json: no tuned Kalman filters; run `dvc repro tune_kalman`"):
         load_settings(tmp_path / "kalman_tuned.json")

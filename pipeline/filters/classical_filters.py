@@ -39,8 +39,8 @@ from filterpy.kalman import IMMEstimator, KalmanFilter
 
 from pipeline.filters import motion_models, turn_model
 from pipeline.io import InputError
-
-KINDS = ("cv", "ca", "imm", "imm_ct", "imm_ca_ct")
+from pipeline.params.learning import FILTER_KINDS as KINDS
+from pipeline.params.learning import REQUIRED_FILTERS
 TURN = "ct"  # a coordinated turn of the kind's turn rate, alternately left and right (`turn_model`)
 MODELS = {"cv": ("cv",), "ca": ("ca",), "imm": ("cv9", "ca"), "imm_ct": ("cv9", TURN, TURN),
           "imm_ca_ct": ("cv9", "ca", TURN, TURN)}
@@ -140,8 +140,9 @@ def load_settings(path) -> dict[str, FilterSettings]:
     """The tuned filters saved by the tune stage, by kind, every value checked.
 
     The file may be edited by hand or damaged, and a filter takes any number: a negative
-    probability or spread does not fail, it changes every track silently. So each of the
-    filters must be there with every key of `FilterSettings`, its probabilities in [0, 1], its
+    probability or spread does not fail, it changes every track silently. So the filters the bench
+    always runs (`REQUIRED_FILTERS`: cv, ca, imm) must be there, the others (those `kalman.filters` adds)
+    may be, each with every key of `FilterSettings`, its probabilities in [0, 1], its
     standard deviations finite and above 0, and its turn rate above 0 for a kind with turns, 0 for the
     others; otherwise InputError names the file, the filter, the key and the value."""
     try:
@@ -156,10 +157,11 @@ def load_settings(path) -> dict[str, FilterSettings]:
     for kind in filters:
         if kind not in KINDS:
             raise InputError(f"{path}: filter {kind!r}: unknown (the tune stage saves {', '.join(KINDS)})")
-    missing = [kind for kind in KINDS if kind not in filters]
+    missing = [kind for kind in REQUIRED_FILTERS if kind not in filters]
     if missing:
-        raise InputError(f"{path}: filter {missing[0]!r}: missing (the tune stage saves {', '.join(KINDS)})")
-    return {kind: _checked_settings(path, kind, filters[kind]) for kind in KINDS}
+        raise InputError(f"{path}: filter {missing[0]!r}: missing (the tune stage saves {', '.join(REQUIRED_FILTERS)} "
+                         "and those kalman.filters adds)")
+    return {kind: _checked_settings(path, kind, filters[kind]) for kind in KINDS if kind in filters}
 
 
 def _checked_settings(path, kind: str, values: object) -> FilterSettings:

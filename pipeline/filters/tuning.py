@@ -234,7 +234,9 @@ def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: 
          ) -> tuple[FilterSettings, Assessment, Assessment, int]:
     """The tuned settings, the assessment before and after, and the cost evaluations used.
 
-    Raises TuningError, with the values reached, when the search does not converge or the
+    The search may take `max_iterations` Nelder-Mead iterations per searched value (scipy's own default is
+    200 per value): an IMM with turns searches six values where the CV filter searches two, and needs the
+    room. Raises TuningError, with the values reached, when the search does not converge or the
     tuned filter is not usable."""
     if cost not in TUNING_COSTS:
         raise ValueError(f"tuning cost {cost!r}: must be one of {TUNING_COSTS}")
@@ -257,7 +259,7 @@ def tune(start: FilterSettings, material: Sequences, cost: str, max_iterations: 
     simplex = np.vstack([initial, initial + np.eye(len(initial)) * SIMPLEX_STEP])
     bounds = optimize.Bounds(initial - SEARCH_RANGE, initial + SEARCH_RANGE)
     result = optimize.minimize(objective, initial, method="Nelder-Mead", bounds=bounds,
-                               options={"maxiter": max_iterations, "xatol": 1e-2, "fatol": 1e-3,
+                               options={"maxiter": max_iterations * len(initial), "xatol": 1e-2, "fatol": 1e-3,
                                         "initial_simplex": simplex})
     reached = _settings_at(start, result.x)
     if not result.success or not np.isfinite(result.fun):

@@ -15,6 +15,8 @@ TUNING_COSTS = ("rmse", "nees", "rmse_in_gate")
 KALMAN_NET_BASES = ("cv", "ca", "singer")   # base filters the network can scale (one motion model each)
 KALMAN_NET_CELLS = ("gru", "mlp")
 GRADIENT_KINDS = ("cv", "ca", "singer", "imm")  # filters tuned by gradient descent
+FILTER_KINDS = ("cv", "ca", "imm", "imm_ct", "imm_ca_ct")  # the classical filters (pipeline/filters/classical_filters.py)
+REQUIRED_FILTERS = ("cv", "ca", "imm")  # tuned always: the oracle, the bound and the fusion's local trackers run them
 TRACK_MODELS = ("kalman", "two_point")          # association.tracks: how the synthetic radars make track points
 MIN_SCENE_SIZE = 10                             # association.scene_size: the network's convolutions need this much
 NETWORKS = ("filter", "predictor", "autoencoder")
@@ -86,7 +88,7 @@ class Training(Section):
 
 def _noise_starts(tree: Mapping[str, Any], key: str, path: str, context: Mapping[str, Any]) -> dict:
     noise = {}
-    for kind, count in (("cv", 1), ("ca", 1), ("imm", 2), ("imm_ct", 2), ("imm_ca_ct", 3)):
+    for kind, count in zip(FILTER_KINDS, (1, 1, 2, 2, 3)):
         values = get(tree, f"{kind}_noise_std", path)
         if (not isinstance(values, list) or len(values) != count
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in values)):
@@ -100,13 +102,18 @@ class Kalman(Section):
     """`kalman` (ours): the classical trackers, tuned on the target plots of a split (tune_kalman stage)."""
 
     split: str = split_knob()
+    filters: tuple[str, ...] = knob(
+        "the filters tune_kalman tunes into models/kalman_tuned.json, distinct, cv, ca and imm among them (the oracle, "
+        "the bound and the fusion's local trackers run them); a run of a filter not listed is refused before "
+        "tracking", choices=FILTER_KINDS)
     cost: str = knob("rmse (filtered position error), nees (|ln(ANEES / 3)|) or rmse_in_gate (rmse, raised when more "
                      "target plots miss the gate than tracker.association.kalman_gate_probability allows)",
                      choices=TUNING_COSTS)
     burn_in_updates: int = knob("plots of each (re)start left out of the cost, its first plot included", 0)
     restart_gap_s: float = positive("a longer gap restarts the filter (the tracker deletes a track silent 2 x "
                                     "tracker.management.silence_s)")
-    max_iterations: int = knob("Nelder-Mead iterations; tuning that has not converged by then fails", 1)
+    max_iterations: int = knob("Nelder-Mead iterations per tuned value (scipy's default: 200); tuning that has not "
+                               "converged by then fails", 1)
     velocity_std_mps: float = positive("a new track's velocity spread (start value; tuned)")
     acceleration_std_mps2: float = positive("a new track's acceleration spread (CA and IMM; not tuned)")
     noise_std: Mapping[str, tuple[float, ...]] = positive(
@@ -120,6 +127,14 @@ class Kalman(Section):
     imm_initial_cv_probability: float = knob("IMM: a new track starts as mostly CV", 0.0, 1.0)
     imm_ct_turn_rate_dps: float = positive("IMMs with turns (issue 33): their left and right turns' rate, deg/s "
                                            "(start value; tuned)")
+
+    def check(self, path: str, context: Mapping[str, Any]) -> Kalman:
+        lacking = [kind for kind in REQUIRED_FILTERS if kind not in self.filters]
+        if lacking or len(set(self.filters)) != len(self.filters):
+            raise ParamError(f"{path}.filters = {list(self.filters)}: must list distinct filters, "
+                             f"{', '.join(REQUIRED_FILTERS)} among them (the oracle, the bound and the fusion's local "
+                             f"trackers run them){f'; {lacking[0]} is missing' if lacking else ''}")
+        return self
 
 
 def _segments(section: Any, path: str, what: str) -> None:

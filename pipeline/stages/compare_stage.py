@@ -31,7 +31,7 @@ import torch
 
 from pipeline import io
 from pipeline.bench.runs import declared_runs, with_records
-from pipeline.filters import batch_filters
+from pipeline.filters import batch_filters, torch_filters
 from pipeline.filters.classical_filters import FilterSettings, load_settings
 from pipeline.filters.gradient_tuning import TunedFilter
 from pipeline.filters.torch_filters import FilterSpec
@@ -116,7 +116,10 @@ def holdout_comparison(holdout: windows.TargetPlots, filters: dict[str, FilterSe
 def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings], params: Params
                    ) -> dict[str, filter_holdout.FilterRun]:
     """The LSTM update (first: its dropout masks are the first drawn, as in its stage), the network-scaled
-    filter, each gradient-tuned filter and each Nelder-Mead tuned one, by label."""
+    filter, each gradient-tuned filter and each Nelder-Mead tuned one the torch filters have, by label. The
+    IMMs with turns are left out: the torch filters (the gradient tuner's and the noise-scale comparison's,
+    `pipeline.filters.torch_filters`) have no turning model; the hold-out comparison of the NumPy filters
+    (`holdout_comparison`) has them."""
     estimator = KINDS["lstm_update"].load_from(models_dir, params)
     network = KINDS["kalman_net"].load_from(models_dir, params)
     gradient = _read_json(models_dir / "kalman_gradient.json", "train_kalman_net")
@@ -125,6 +128,8 @@ def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings], params: P
     for kind, values in gradient.items():
         runs[f"{GRADIENT_LABELS[kind]}, gradient-tuned"] = TunedFilter.from_dict(values)
     for kind, settings in tuned.items():
+        if kind not in torch_filters.MODELS:
+            continue
         spec = FilterSpec.from_settings(settings)
         runs[f"{FILTER_LABELS[kind]}, Nelder-Mead tuned"] = lambda batch, spec=spec: batch.filtered(spec)
     return runs

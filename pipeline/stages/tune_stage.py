@@ -1,4 +1,5 @@
-"""Stage `tune_kalman`: tune the classical filters (CV, CA, IMM, IMM with turns) on a split's target plots.
+"""Stage `tune_kalman`: tune the classical filters of `kalman.filters` (CV, CA, IMM always; the IMMs with
+turns where listed) on a split's target plots.
 
 Writes `models/kalman_tuned.json` (what the tracker and the comparison load) only when every
 filter tuned; `reports/kalman_tuning.json` has each filter's cost, error and NEES before and
@@ -66,7 +67,12 @@ def _log_tuned(kind: str, entry: dict) -> None:
 def _tasks(params: Params, material: tuning.Sequences) -> dict[str, tuple]:
     """Each filter kind's `tune_filter` arguments: the same wherever it runs."""
     return {kind: (start_settings(kind, params), material, params.kalman.cost, params.kalman.max_iterations)
-            for kind in KINDS}
+            for kind in _kinds(params)}
+
+
+def _kinds(params: Params) -> tuple[str, ...]:
+    """The kinds `kalman.filters` lists, in KINDS order."""
+    return tuple(kind for kind in KINDS if kind in params.kalman.filters)
 
 
 def _tuned_kind(tasks: dict[str, tuple], kind: str) -> tuple[FilterSettings, dict] | tuning.TuningError:
@@ -78,22 +84,23 @@ def _tuned_kind(tasks: dict[str, tuple], kind: str) -> tuple[FilterSettings, dic
 
 
 def tune_all(params: Params, material: tuning.Sequences) -> dict[str, tuple[FilterSettings, dict]]:
-    """Every filter kind tuned (`tune_filter`), by kind in KINDS order, on `params.workers` workers of
-    the bench's engine (`pipeline.bench.engine`: this process, a local cluster or a named scheduler).
+    """Every filter kind of `kalman.filters` tuned (`tune_filter`), by kind in KINDS order, on `params.workers`
+    workers of the bench's engine (`pipeline.bench.engine`: this process, a local cluster or a named scheduler).
 
     Raises the TuningError of the first kind (in KINDS order) that failed, after all have finished."""
-    units = [(kind,) for kind in sorted(KINDS, key=LONGEST_FIRST.index)]
+    kinds = _kinds(params)
+    units = [(kind,) for kind in sorted(kinds, key=LONGEST_FIRST.index)]
     tasks = _tasks(params, material)
     results = {}
-    for (kind,), result in engine.completed_units(units, min(params.workers, len(KINDS)), _tuned_kind, tasks,
+    for (kind,), result in engine.completed_units(units, min(params.workers, len(kinds)), _tuned_kind, tasks,
                                                   _tasks, (params, material)):
         results[kind] = result
         if not isinstance(result, tuning.TuningError):
             _log_tuned(kind, result[1])
-    failed = [results[kind] for kind in KINDS if isinstance(results[kind], tuning.TuningError)]
+    failed = [results[kind] for kind in kinds if isinstance(results[kind], tuning.TuningError)]
     if failed:
         raise failed[0]
-    return {kind: results[kind] for kind in KINDS}
+    return {kind: results[kind] for kind in kinds}
 
 
 def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir: Path) -> None:
@@ -109,7 +116,7 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
     uri = experiment_tracking.tracking_uri(params.training.tracking_uri)
     experiment_tracking.check_tracking_store(uri, params.training.experiment, "tune_kalman")
     log.info("tune_kalman: %d target plots of %s, %d scored, cost %s, %d worker processes", int(material.valid.sum()),
-             plots_path, int(material.scored.sum()), params.kalman.cost, min(params.workers, len(KINDS)))
+             plots_path, int(material.scored.sum()), params.kalman.cost, min(params.workers, len(_kinds(params))))
 
     with experiment_tracking.stage_run(uri, params, "tune_kalman", "tune-kalman",
                                        {"input_data_sha256": experiment_tracking.data_hash(plots_path)}):

@@ -58,6 +58,6 @@ def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
     for name in methods:
         kind = registry.method(name).filter_kind
         if kind is not None and kind not in pieces[TUNED_FILTERS]:
-            raise io.InputError(f"{paths[TUNED_FILTERS]}: has no tuned {kind} filter, which {name} runs (make it "
-                                "with `dvc repro tune_kalman`)")
+            raise io.InputError(f"{paths[TUNED_FILTERS]}: has no tuned {kind} filter, which {name} runs (list {kind} "
+                                "in kalman.filters and run `dvc repro tune_kalman`)")
     return Models(pieces, params.tracker.inference)
