@@ -98,6 +98,17 @@ def test_invalid_value_names_key_and_value(params_tree, key, value, fragments):
         assert fragment in str(error.value)
 
 
+def test_a_run_of_a_filter_not_tuned_stops_at_the_params_naming_the_run_and_the_knob(params_tree):
+    """kalman.filters without imm_ct while evaluate.runs holds imm_ct_gnn: refused when params are read (the
+    first stage), not when the evaluation loads the tuned filters an hour later."""
+    params_tree["kalman"]["filters"] = ["cv", "ca", "imm"]
+    index = [run["method"] for run in params_tree["evaluate"]["runs"]].index("imm_ct_gnn")
+    with pytest.raises(ParamError, match=re.escape(
+            f"evaluate.runs[{index}].method = 'imm_ct_gnn': runs the imm_ct filter, which kalman.filters = "
+            "['cv', 'ca', 'imm'] does not tune (list imm_ct there)")):
+        parse_params(params_tree)
+
+
 @pytest.mark.parametrize("section, key", [("radar", "sigma_range_m"), ("routes", "sample_interval_s"),
                                           ("simulate", "seed"), ("routes", "climb_dive")])
 def test_missing_key_is_named(params_tree, section, key):

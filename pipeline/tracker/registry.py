@@ -57,7 +57,7 @@ class UnknownMethod(ValueError):
 
 @dataclass(frozen=True)
 class Method:
-    """One tracking method. `filter_kind`: the tuned classical filter it runs (cv, ca, imm), if any.
+    """One tracking method. `filter_kind`: the tuned classical filter it runs (one of `kalman.filters`), if any.
     `relative_cost`: rough tracking time per plot relative to `via`, measured on the default test
     split; only the order in which the evaluate stage hands out work depends on it."""
 
@@ -235,7 +235,9 @@ EVALUATION_REFERENCES = ("plots", *REFERENCES)  # evaluate.references: raw targe
 def check_params(params: "Params") -> None:
     """The names params gives that this registry owns (ParamError naming the key and the value): the
     tracker's management rule, every evaluation run's method and rule, the evaluation's references,
-    and the fusion stage's local tracker, which must give covariances."""
+    and the fusion stage's local tracker, which must give covariances; and each of these methods' tuned
+    filter among those `kalman.filters` has `tune_kalman` tune, so a run it cannot load stops the first
+    stage, not the evaluation an hour later."""
     if params.tracker.management.rule not in MANAGEMENT:
         raise ParamError(f"tracker.management.rule = {params.tracker.management.rule!r}: must be one of {MANAGEMENT}")
     for index, run in enumerate(params.evaluate.runs):
@@ -243,6 +245,7 @@ def check_params(params: "Params") -> None:
             raise ParamError(f"evaluate.runs[{index}].method = {run.method!r}: must be one of {TRACKERS}")
         if run.management is not None and run.management not in MANAGEMENT:
             raise ParamError(f"evaluate.runs[{index}].management = {run.management!r}: must be one of {MANAGEMENT}")
+        _check_tuned(f"evaluate.runs[{index}].method", run.method, params)
     references = list(params.evaluate.references)
     if any(name not in EVALUATION_REFERENCES for name in references):
         raise ParamError(f"evaluate.references = {references!r}: must list some of {EVALUATION_REFERENCES}")
@@ -251,6 +254,14 @@ def check_params(params: "Params") -> None:
         raise ParamError(f"fusion.tracker = {params.fusion.tracker!r}: must be one of {COVARIANCE_TRACKERS} "
                          f"(association and fusion read each track's covariance; the networks of "
                          f"{', '.join(without)} give none)")
+    _check_tuned("fusion.tracker", params.fusion.tracker, params)
+
+
+def _check_tuned(key: str, name: str, params: "Params") -> None:
+    kind = METHODS[name].filter_kind
+    if kind is not None and kind not in params.kalman.filters:
+        raise ParamError(f"{key} = {name!r}: runs the {kind} filter, which kalman.filters = "
+                         f"{list(params.kalman.filters)} does not tune (list {kind} there)")
 
 
 def method(name: str) -> Method:
