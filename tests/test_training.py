@@ -491,6 +491,8 @@ def test_the_evaluate_stage_finds_the_registered_versions_of_the_bundles_it_uses
     model = load_model(tmp_path / "models" / "filter.pt")
     save_network(tmp_path / "models" / "filter.pt", model.network, {"retrained": True}, model.scaler)
     assert versions_used(trained, EXPERIMENT, tmp_path / "models")["filter"] is None
+    (tmp_path / "models" / "autoencoder.pt").unlink()  # an evaluation of classical runs needs no network
+    assert set(versions_used(trained, EXPERIMENT, tmp_path / "models")) == set(KINDS) - {"autoencoder"}
 
 
 def test_train_command_prints_each_lightning_line_once_and_no_advertising(chain, tmp_path):

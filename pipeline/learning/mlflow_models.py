@@ -110,9 +110,12 @@ def logged_model_id(version: ModelVersion) -> str | None:
 def versions_used(client: MlflowClient, experiment: str, models_dir: Path) -> dict[str, ModelVersion | None]:
     """For each network, the registered version whose training wrote the bundle in `models_dir`
     now (the newest, if the same bundle was registered more than once); None if none did (the
-    bundle was trained with another store, or before models were registered)."""
+    bundle was trained with another store, or before models were registered). A network whose bundle is not in
+    `models_dir` is left out: an evaluation of classical runs alone needs none."""
     found: dict[str, ModelVersion | None] = {}
     for kind in KINDS:
+        if not (models_dir / f"{kind}.pt").is_file():
+            continue
         digest = data_hash(models_dir / f"{kind}.pt")
         versions = client.search_model_versions(
             f"name = '{registered_name(experiment, kind)}' and tags.`{FILE_DIGEST_TAG}` = '{digest}'")
