@@ -104,8 +104,8 @@ class Kalman(Section):
     split: str = split_knob()
     filters: tuple[str, ...] = knob(
         "the filters tune_kalman tunes into models/kalman_tuned.json, distinct, cv, ca and imm among them (the oracle, "
-        "the bound and the fusion's local trackers run them); a run of a filter not listed is refused before "
-        "tracking", choices=FILTER_KINDS)
+        "the bound and the fusion's local trackers run them); a run of a filter not listed is refused when "
+        "params are read", choices=FILTER_KINDS)
     cost: str = knob("rmse (filtered position error), nees (|ln(ANEES / 3)|) or rmse_in_gate (rmse, raised when more "
                      "target plots miss the gate than tracker.association.kalman_gate_probability allows)",
                      choices=TUNING_COSTS)

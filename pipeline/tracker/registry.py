@@ -235,9 +235,9 @@ EVALUATION_REFERENCES = ("plots", *REFERENCES)  # evaluate.references: raw targe
 def check_params(params: "Params") -> None:
     """The names params gives that this registry owns (ParamError naming the key and the value): the
     tracker's management rule, every evaluation run's method and rule, the evaluation's references,
-    and the fusion stage's local tracker, which must give covariances; and each of these methods' tuned
-    filter among those `kalman.filters` has `tune_kalman` tune, so a run it cannot load stops the first
-    stage, not the evaluation an hour later."""
+    and the fusion stage's local tracker, which must give covariances; and that the tuned filter each of
+    these methods runs is one `kalman.filters` has `tune_kalman` tune, so a run that could not load stops
+    the first stage, not the evaluation an hour later."""
     if params.tracker.management.rule not in MANAGEMENT:
         raise ParamError(f"tracker.management.rule = {params.tracker.management.rule!r}: must be one of {MANAGEMENT}")
     for index, run in enumerate(params.evaluate.runs):
