@@ -82,7 +82,7 @@ def test_a_file_without_one_of_the_filters_is_refused_naming_it(tmp_path):
 
 
 def test_the_filters_kalman_filters_may_add_may_be_absent(tmp_path):
-    """kalman.filters leaves the IMMs with turns out by default: a file without them loads, without them."""
+    """kalman.filters leaves the IMM with CA and turns out by default: a file without it loads, without it."""
     path = tmp_path / "kalman_tuned.json"
     path.write_text(json.dumps({"filters": {kind: TUNED[kind].to_dict() for kind in ("cv", "ca", "imm", "imm_ct")}}))
     assert list(load_settings(path)) == ["cv", "ca", "imm", "imm_ct"]
