@@ -264,6 +264,73 @@ def write_json(data: Any, destination: str | Path) -> None:
         temporary.write_text(json.dumps(_finite(data), indent=2, sort_keys=True, allow_nan=False) + "\n")
 
 
+METRIC_DIGITS = 6   # significant digits a metrics file keeps
+TIMING_DIGITS = 3   # and its timings file
+TIMING_KEYS = frozenset({"plots_per_second", "seconds"})  # a tracker's speed; a tuning's or training's duration
+
+
+def rounded(data: Any, digits: int = METRIC_DIGITS) -> Any:
+    """Every float of `data` (nested in dicts and lists) rounded to `digits` significant digits.
+
+    Why: a metric is the mean of a few hundred noisy draws, so its Monte Carlo spread shows in the second or
+    third digit; what lies past the sixth is the machine's arithmetic (two processors differ in the twelfth
+    digit of the same sum), and `dvc metrics diff` would list it as a change. Integers and booleans are kept."""
+    if isinstance(data, float):
+        return float(f"{data:.{digits}g}") if np.isfinite(data) else data
+    if isinstance(data, dict):
+        return {key: rounded(value, digits) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [rounded(value, digits) for value in data]
+    return data
+
+
+def split_timings(data: Any) -> tuple[Any, dict]:
+    """(`data` without its timing fields, the timing fields in the same nesting): the keys of `TIMING_KEYS`
+    in any dict of `data`, a list's dicts excepted (a timing is named by its path of keys)."""
+    if not isinstance(data, dict):
+        return data, {}
+    results, timings = {}, {}
+    for key, value in data.items():
+        if key in TIMING_KEYS:
+            timings[key] = value
+            continue
+        results[key], inner = split_timings(value)
+        if inner:
+            timings[key] = inner
+    return results, timings
+
+
+def timings_path(metrics: str | Path) -> Path:
+    """Where the timings of the metrics file `metrics` go: `timings/` beside it, same name."""
+    metrics = Path(metrics)
+    return metrics.parent / "timings" / metrics.name
+
+
+def write_metrics(data: dict, destination: str | Path) -> None:
+    """A metrics file DVC compares (`dvc metrics diff`): `data`'s results rounded to `METRIC_DIGITS`
+    significant digits at `destination`, its timings (`TIMING_KEYS`, which differ on every run) to
+    `timings_path(destination)`, so that a diff of two runs lists only what a change moved. Both atomic.
+    `read_metrics` puts them back together."""
+    results, timings = split_timings(data)
+    write_json(rounded(results), destination)
+    if timings:
+        write_json(rounded(timings, TIMING_DIGITS), timings_path(destination))
+
+
+def _merged(results: Any, timings: Any) -> Any:
+    if not (isinstance(results, dict) and isinstance(timings, dict)):
+        return timings
+    return {**results, **{key: _merged(results.get(key), value) for key, value in timings.items()}}
+
+
+def read_metrics(path: str | Path) -> dict:
+    """A metrics file as `write_metrics` was given it (its timings, if it has a timings file, put back)."""
+    path = Path(path)
+    data = json.loads(path.read_text())
+    timings = timings_path(path)
+    return _merged(data, json.loads(timings.read_text())) if timings.is_file() else data
+
+
 def write_text(text: str, destination: str | Path) -> None:
     with atomic_path(destination) as temporary:
         temporary.write_text(text)

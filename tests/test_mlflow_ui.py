@@ -16,7 +16,6 @@ nothing is downloaded, so `playwright install` is neither needed nor possible he
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +25,7 @@ import pytest
 import yaml
 from playwright.sync_api import Browser, Page, expect, sync_playwright
 
+from pipeline import io
 from pipeline.learning.experiment_tracking import DVC_EXPERIMENT_TAG, SESSION_TAG, data_hash
 from pipeline.learning.mlflow_models import FILE_DIGEST_TAG, registered_name
 from pipeline.learning.networks import KINDS
@@ -183,9 +183,9 @@ def work_seconds(repository: Path, stage: str) -> float:
     """A lower bound of the seconds the stage's work took, from what its report measured: the
     longest filter's tuning, or the tracking time of every run spread over the worker processes."""
     if stage == "tune_kalman":
-        filters = json.loads((repository / "reports" / "kalman_tuning.json").read_text())["filters"]
+        filters = io.read_metrics(repository / "reports" / "kalman_tuning.json")["filters"]
         return max(entry["seconds"] for entry in filters.values())
-    runs = json.loads((repository / "reports" / "tracker_metrics.json").read_text())["runs"]
+    runs = io.read_metrics(repository / "reports" / "tracker_metrics.json")["runs"]
     workers = yaml.safe_load((repository / "params.yaml").read_text())["compute"]["workers"]
     return sum((run["target_plots"] + run["false_plots"]) / run["plots_per_second"] for run in runs.values()) / workers
 

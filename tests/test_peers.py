@@ -11,6 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
+from pipeline import io
 from pipeline.bench import peers, scene_evaluation
 from pipeline.reports import peers_tables
 from tests import tracker_fixtures as tf
@@ -102,7 +103,7 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
     from tests.servers import dvc
     repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
     dvc(repository, "repro", "--single-item", "peers")
-    report = json.loads((repository / "reports" / "peers.json").read_text())
+    report = io.read_metrics(repository / "reports" / "peers.json")
     params = tf.make_params()
     names = ["stone_soup_gnn", "stone_soup_jpda", "via_4000", "ae_5000", "kalman_cv_4000", "oracle_reference"]
     assert set(report["materials"]) == {"test", "real_traffic"}
@@ -115,7 +116,8 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
             assert 0.0 <= metrics["GOSPA"] < math.inf, (material, name)  # GOSPA is no mean: it grows with aircraft
             assert 0.0 <= metrics["probability_of_update"] <= 1.0 and metrics["plots_per_second"] > 0
             causes = sum(metrics[f"GOSPA_missed_{cause}"] for cause in scene_evaluation.MISSED_CAUSES)
-            assert causes == pytest.approx(metrics["GOSPA_missed"], rel=1e-9, abs=1e-9)  # the causes add up
+            assert causes == pytest.approx(metrics["GOSPA_missed"], rel=1e-5, abs=1e-9)  # the causes add up (to the
+            # file's six digits)
         oracle = report["runs"][material]["oracle_reference"]
         assert oracle["false_tracks"] == 0 and oracle["position_rms_m"] < params.scorecard.association_m
         bounds = report["materials"][material]["pcrb_horizontal_rms_m"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -63,10 +64,28 @@ def test_walkthrough_runs_as_written(tmp_path: Path) -> None:
                                capture_output=True, text=True, check=True).stdout
     assert not [line for line in untracked.splitlines() if line.startswith("??")], untracked  # outputs ignored
 
+    moved = metrics_moved(repository)
+    assert moved, "the experiment moved no metric"
+    assert not {"reports/data.json", "reports/windows.json", "reports/kalman_tuning.json",
+                "reports/models/filter.json", "reports/models/autoencoder.json"} & set(moved)  # upstream of it
+    classical = ("kalman_cv", "kalman_ca", "imm", "plots_reference", "oracle_reference")
+    assert not [(file, key) for file, keys in moved.items() for key in keys
+                if any(f".{name}" in key for name in classical) or "per_second" in key or "seconds" in key]
+
     client = mlflow.MlflowClient(f"sqlite:///{repository / 'mlflow.db'}")
     experiment = client.get_experiment_by_name(params["training"]["experiment"])
     names = {run.info.run_name for run in client.search_runs([experiment.experiment_id])}
     assert {"train_filter", "train_predictor", "train_autoencoder", "evaluate"} <= names
+
+
+def metrics_moved(repository: Path) -> dict[str, list[str]]:
+    """`dvc metrics diff` of the workspace (the experiment) against the baseline commit: file -> the keys it
+    lists as changed. The issue's goal: only what the experiment moved, so neither a classical tracker's figure
+    (the predictor is not in it; the same bits on the same machine) nor a timing, nor a stage upstream of it."""
+    result = subprocess.run([str(Path(sys.executable).parent / "dvc"), "metrics", "diff", "--json"], cwd=repository,
+                            env=environment(), capture_output=True, text=True, check=True)
+    diff = json.loads(result.stdout or "{}")
+    return {file: sorted(keys) for file, keys in diff.items() if keys}
 
 
 def test_thesis_schedule_command_sets_the_thesis_schedule(params_tree) -> None:

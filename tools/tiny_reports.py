@@ -28,9 +28,11 @@ from pathlib import Path
 
 import yaml
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from pipeline.io import TIMING_KEYS  # noqa: E402  (a tracker's speed; a tuning's or training's duration)
+
 REPOSITORY = Path(__file__).resolve().parent.parent
 PINNED = REPOSITORY / "tests" / "tiny_reports.json"
-TIMING_KEYS = frozenset({"plots_per_second", "seconds"})  # a tracker's speed; a tuning's or training's duration
 TARGET = "evaluate"  # the tiny run is `dvc repro evaluate` (tests/servers.py)
 COMPARED = ("routes", "simulate", "scenes", "windows", "data_report", "tune_kalman")  # the same bytes on any machine
 

@@ -42,11 +42,15 @@ if TYPE_CHECKING:
 log = logging.getLogger("pipeline")
 
 
-def _write(content: bytes | str | dict, path: Path) -> None:
+def _write(content: bytes | str | dict, path: Path, reports: Path) -> None:
+    """A JSON report in the reports folder is a metrics file (rounded, its timings apart: `io.write_metrics`);
+    one beside the models is an input of a later stage, written whole."""
     if isinstance(content, bytes):
         io.write_bytes(content, path)
     elif isinstance(content, str):
         io.write_text(content, path)
+    elif path.resolve().is_relative_to(reports.resolve()):
+        io.write_metrics(content, path)
     else:
         io.write_json(content, path)
 
@@ -91,7 +95,7 @@ def run_training(kind: Kind, params: Params, folders: Folders) -> None:
         outcome = recipe.holdout(Trained(network, task, fitted, inputs, params, folders, logger))
         save_network(bundle, network, outcome.extras, inputs.scaler)
         for path, content in outcome.files.items():
-            _write(content, path)
+            _write(content, path, folders.reports)
         logger.log_metrics(outcome.metrics)
         for artifact in (bundle, *outcome.artifacts):
             logger.log_artifact(artifact)

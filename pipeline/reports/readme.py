@@ -209,7 +209,7 @@ def results_section(reports: Path, folder: Path, declared: Mapping[str, Run]) ->
     for name, title, table in sections:
         path = reports / name
         if path.is_file():
-            parts += [f"## {title} (`reports/{name}`)", "", table(json.loads(path.read_text())), ""]
+            parts += [f"## {title} (`reports/{name}`)", "", table(io.read_metrics(path)), ""]
     parts.append(END)
     return "\n".join(parts)
 
@@ -219,7 +219,7 @@ def headline_section(reports: Path, folder: Path, declared: Mapping[str, Run]) -
     path = reports / "comparison.json"
     if not path.is_file():
         return "\n".join([HEADLINE_START, "", "No comparison yet: run `dvc repro compare`.", "", HEADLINE_END])
-    comparison = json.loads(path.read_text())
+    comparison = io.read_metrics(path)
     trackers = with_records(comparison["trackers"], declared, "reports/comparison.json")
     intervals = _tracker_intervals(comparison)
     caveat = [] if intervals is not None else [

@@ -23,7 +23,6 @@ the share within a share of the range), the LSTM update's MC-dropout masks drawn
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -139,7 +138,7 @@ def scaled_filters(models_dir: Path, tuned: dict[str, FilterSettings], params: P
 def _read_json(path: Path, stage: str) -> dict:
     if not path.is_file():
         raise io.InputError(f"{path}: file not found (run `dvc repro {stage}`)")
-    return json.loads(path.read_text())
+    return io.read_metrics(path)
 
 
 
@@ -229,7 +228,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
     ]) + "\n"
     picture = figures.comparison_picture(runs, intervals["trackers"]["runs"])
     noise_picture = figures.noise_scale_picture(scaled)
-    io.write_json(comparison, reports_dir / "comparison.json")
+    io.write_metrics(comparison, reports_dir / "comparison.json")
     io.write_text(text, reports_dir / "comparison.md")
     io.write_bytes(picture, reports_dir / "comparison.png")
     io.write_bytes(noise_picture, reports_dir / "noise_scales.png")

@@ -31,7 +31,7 @@ def run_data_report(params: Params, routes_dir: Path, simulated_dir: Path, repor
     route_table, plots, truth = loaded[first]
     routes_png = data_figures.route_examples(route_table, plots, params, params.example_routes)
     radar_png = data_figures.radar_statistics(plots, truth)
-    io.write_json(summary, reports_dir / "data.json")
+    io.write_metrics(summary, reports_dir / "data.json")
     io.write_bytes(routes_png, reports_dir / "data_routes.png")
     io.write_bytes(radar_png, reports_dir / "data_radar.png")
     log.info("data report: %s, %s, %s", reports_dir / "data.json", reports_dir / "data_routes.png",

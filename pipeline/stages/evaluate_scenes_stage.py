@@ -39,8 +39,8 @@ def run_evaluate_scenes(params: Params, scenes_dir: Path, models_dir: Path, repo
               "example": {"scene": evaluation.scenes[busiest].scenario_id, "run": run_name}, "runs": by_name(runs)}
     picture = figures.scene_picture(evaluation.scenes[busiest], updates, scored, evaluation.management[example],
                                     params, run_name)
-    io.write_json(report, reports_dir / "scene_metrics.json")
-    io.write_json(intervals, reports_dir / "scene_intervals.json")
+    io.write_metrics(report, reports_dir / "scene_metrics.json")
+    io.write_metrics(intervals, reports_dir / "scene_intervals.json")
     io.write_bytes(picture, reports_dir / "scene_example.png")
     log.info("evaluate_scenes: %d runs over %d scenes -> %s, %s", len(runs), scenes.count,
              reports_dir / "scene_metrics.json", reports_dir / "scene_example.png")

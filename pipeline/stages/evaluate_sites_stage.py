@@ -7,7 +7,6 @@ as `reports/tracker_metrics.json` has them, without the speeds.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
@@ -24,7 +23,7 @@ def training_runs(params: Params, path: Path) -> tuple[dict[str, dict], dict[str
     (`evaluate.site_runs`) and the references, checked to be of params' runs, and its bounds by model."""
     if not path.is_file():
         raise io.InputError(f"{path}: file not found (run `dvc repro evaluate`)")
-    report = json.loads(path.read_text())
+    report = io.read_metrics(path)
     runs = report["runs"]
     expected = sorted(declared_runs(params))  # every run and reference, by name
     if sorted(runs) != expected:
@@ -38,5 +37,5 @@ def training_runs(params: Params, path: Path) -> tuple[dict[str, dict], dict[str
 
 def run_evaluate_sites(params: Params, models_dir: Path, reports_dir: Path) -> None:
     report = sites.site_metrics(params, *training_runs(params, reports_dir / "tracker_metrics.json"), models_dir)
-    io.write_json(report, reports_dir / "site_metrics.json")
+    io.write_metrics(report, reports_dir / "site_metrics.json")
     log.info("evaluate_sites: %d sites -> %s", len(report["sites"]), reports_dir / "site_metrics.json")

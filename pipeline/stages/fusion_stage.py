@@ -23,8 +23,8 @@ log = logging.getLogger("pipeline")
 
 def run_fusion(params: Params, models_dir: Path, reports_dir: Path) -> None:
     report, intervals = fusion_bench.fusion_reports(params, models_dir, params.workers)
-    io.write_json(report, reports_dir / "fusion.json")
-    io.write_json(intervals, reports_dir / "fusion_intervals.json")
+    io.write_metrics(report, reports_dir / "fusion.json")
+    io.write_metrics(intervals, reports_dir / "fusion_intervals.json")
     io.write_bytes(fusion_bias_sweep.sweep_figure(report["bias_sweep"]), reports_dir / "fusion_bias.png")
     log.info("fusion: %d scenes, %d common times; GOSPA %s -> %s", report["scenes"], report["common_times"],
              ", ".join(f"{name} {value:.0f} m" for name, value in report["gospa_m"].items()),

@@ -59,8 +59,8 @@ def run_peers(params: Params, simulated_dir: Path, routes_dir: Path, models_dir:
                      values["probability_of_update"], values["ratio_of_long_gaps"], values["plots_per_second"])
         if material == peers.TEST:
             interval_report[material] = peers.metric_intervals(params, recordings, units)
-    io.write_json(report, reports_dir / "peers.json")
-    io.write_json(interval_report, reports_dir / "peers_intervals.json")
+    io.write_metrics(report, reports_dir / "peers.json")
+    io.write_metrics(interval_report, reports_dir / "peers_intervals.json")
     io.write_text(peers_tables.report_markdown(report, interval_report), reports_dir / "peers.md")
     log.info("peers: %d runs over %d recordings -> %s, %s", len(bench.peers), len(bench.recordings),
              reports_dir / "peers.json", reports_dir / "peers.md")

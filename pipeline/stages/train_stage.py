@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from pipeline import io
@@ -29,6 +28,6 @@ def run_models_report(reports_dir: Path) -> None:
         path = reports_dir / "models" / f"{kind}.json"
         if not path.is_file():
             raise io.InputError(f"{path}: file not found (run train_{kind})")
-        merged[kind] = json.loads(path.read_text())
+        merged[kind] = io.read_metrics(path)
     merged["thesis"] = model_eval.THESIS
-    io.write_json(merged, reports_dir / "models.json")
+    io.write_metrics(merged, reports_dir / "models.json")

@@ -126,7 +126,7 @@ def run_tune(params: Params, simulated_dir: Path, models_dir: Path, reports_dir:
                   "filters": {kind: entry for kind, (_, entry) in results.items()}}
         io.write_json({"cost": params.kalman.cost, "filters": {kind: s.to_dict() for kind, (s, _) in results.items()}},
                       models_dir / "kalman_tuned.json")
-        io.write_json(report, reports_dir / "kalman_tuning.json")
+        io.write_metrics(report, reports_dir / "kalman_tuning.json")
 
         mlflow.log_metrics({f"{kind}.{name}": float(values[name]) for kind, values in report["filters"].items()
                             for name in ("cost_before", "cost_after")})

@@ -52,7 +52,7 @@ def run_windows(params: Params, simulated_dir: Path, out_dir: Path, reports_dir:
     io.write_parquet(calibration, out_dir / "autoencoder_calibration.parquet")
     io.write_parquet(materials.holdout_table(holdout), out_dir / "holdout.parquet")
     io.write_json({name: scaler.to_dict() for name, scaler in scalers.items()}, out_dir / "scalers.json")
-    io.write_json(summary, reports_dir / "windows.json")
+    io.write_metrics(summary, reports_dir / "windows.json")
     io.write_bytes(picture, reports_dir / "windows_linearity.png")
     log.info("windows: %s", ", ".join(f"{k} {v}" for k, v in summary["segments"].items()))
 
