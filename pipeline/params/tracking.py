@@ -21,10 +21,12 @@ LEARNED_RUNTIMES = ("script", "eager")  # tracker.learned_runtime (pipeline/lear
 @dataclass(frozen=True)
 class Management(Section):
     """`tracker.management`: the track management rules of every tracker (pipeline/tracker/management.py,
-    m_of_n.py): the rule of every run that names none, the thesis's weights and the M-of-N rule's knobs."""
+    m_of_n.py, sprt.py): the rule of every run that names none, the thesis's weights, the M-of-N rule's and the
+    SPRT's knobs."""
 
-    rule: str = knob("track management of every run that names none: thesis (the weights) or m_of_n (Blackman "
-                     "& Popoli 1999 M/N confirmation, time-out deletion)")
+    rule: str = knob("track management of every run that names none: thesis (the weights), m_of_n (Blackman "
+                     "& Popoli 1999 M/N confirmation, time-out deletion) or sprt (the sequential probability ratio "
+                     "test on hits and misses, Blackman & Popoli 1999 6.2)")
     weight_start: float = positive("a new track's weight; weights rise: start < candidate < confirmed")
     weight_candidate: float = positive("a candidate track's weight")
     weight_confirmed: float = positive("a confirmed (mature) track's weight")
@@ -37,8 +39,23 @@ class Management(Section):
                           MAX_CONFIRM_N)
     delete_after_s: float = positive("m_of_n: a confirmed track silent longer than this ...")
     delete_after_scans: float = knob("... and than this many scans of its latest plot's radar is deleted", 0.0)
+    sprt_detection_probability: float = knob("sprt: P_D, an aircraft's plot in its track's gate in a scan", 0.0, 1.0,
+                                             open_low=True, open_high=True)
+    sprt_false_plot_probability: float = knob("sprt: P_F, a false plot in a clutter track's gate in a scan (below "
+                                              "P_D)", 0.0, 1.0, open_low=True, open_high=True)
+    sprt_false_track_probability: float = knob("sprt: alpha, the test's risk of confirming a clutter track", 0.0, 1.0,
+                                               open_low=True, open_high=True)
+    sprt_lost_track_probability: float = knob("sprt: beta, its risk of deleting an aircraft's track (alpha + beta "
+                                              "< 1)", 0.0, 1.0, open_low=True, open_high=True)
 
     def check(self, path: str, context: Mapping[str, Any]) -> Management:
+        if self.sprt_false_plot_probability >= self.sprt_detection_probability:
+            raise ParamError(f"{path}.sprt_false_plot_probability = {self.sprt_false_plot_probability}: must be below "
+                             f"{path}.sprt_detection_probability = {self.sprt_detection_probability} (a hit would "
+                             "then speak for clutter)")
+        if self.sprt_false_track_probability + self.sprt_lost_track_probability >= 1.0:
+            raise ParamError(f"{path}.sprt_false_track_probability + sprt_lost_track_probability = "
+                             f"{self.sprt_false_track_probability} + {self.sprt_lost_track_probability}: must be below 1")
         if self.confirm_m > self.confirm_n:
             raise ParamError(f"{path}.confirm_m = {self.confirm_m}: must not exceed {path}.confirm_n = "
                              f"{self.confirm_n}")

@@ -17,7 +17,8 @@ time-step deleters); a radar display counts target persistence in antenna turns 
 issue 36).
 
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
-alternative (M-of-N confirmation, time-out deletion). `pipeline.tracker.registry` names both
+alternative (M-of-N confirmation, time-out deletion), `pipeline.tracker.sprt.SequentialRatioTest` the
+classical track-existence test (the SPRT on hits and misses). `pipeline.tracker.registry` names them
 (`tracker.management.rule`, or a run's `management`).
 """
 

@@ -15,7 +15,7 @@ here; nothing else lists methods. Adding a method is one entry here (and the mod
 parts); docs/architecture.md has a worked example.
 
 Track management is composed the same way: `MANAGEMENT` names the rules (`thesis`, the default
-of every method, and `m_of_n`), and `compose(..., management_rule=...)` runs any method under either.
+of every method, `m_of_n` and `sprt`), and `compose(..., management_rule=...)` runs any method under any.
 
 The implementations are imported inside the compose functions, so naming or validating a method
 loads no network library.
@@ -47,8 +47,8 @@ GLOBAL_SUFFIX = "_gnn"  # a method with scan-wise global-nearest-neighbour assoc
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
-THESIS_RULE, M_OF_N_RULE = "thesis", "m_of_n"
-MANAGEMENT = (THESIS_RULE, M_OF_N_RULE)  # track management rules (`tracker.management.rule`, a run's `management`)
+THESIS_RULE, M_OF_N_RULE, SPRT_RULE = "thesis", "m_of_n", "sprt"
+MANAGEMENT = (THESIS_RULE, M_OF_N_RULE, SPRT_RULE)  # track management rules (`tracker.management.rule`, a run's `management`)
 
 
 class UnknownMethod(ValueError):
@@ -274,10 +274,13 @@ def method(name: str) -> Method:
 
 def management(rule: str, params: "TrackerParams") -> "TrackManagement":
     """The track management rule named `rule` (one of `MANAGEMENT`) with the tracker params'
-    settings: `thesis`, the thesis's weights; `m_of_n`, M-of-N confirmation and a time-out."""
+    settings: `thesis`, the thesis's weights; `m_of_n`, M-of-N confirmation and a time-out; `sprt`, the
+    sequential probability ratio test on hits and misses."""
     from pipeline.tracker.m_of_n import MOfN
     from pipeline.tracker.management import ThesisWeights
-    rules = {THESIS_RULE: ThesisWeights.from_params, M_OF_N_RULE: MOfN.from_params}
+    from pipeline.tracker.sprt import SequentialRatioTest
+    rules = {THESIS_RULE: ThesisWeights.from_params, M_OF_N_RULE: MOfN.from_params,
+             SPRT_RULE: SequentialRatioTest.from_params}
     if rule not in rules:
         raise ValueError(f"track management {rule!r}: must be one of {list(rules)}")
     return rules[rule](params.management)
