@@ -380,8 +380,8 @@ def test_train_command_logs_one_complete_mlflow_run(chain, trained, kind, tmp_pa
     metrics = run.data.metrics
     for name in HOLDOUT_METRICS[kind]:
         assert np.isfinite(metrics[name]) and metrics[name] >= 0.0, name
-    for name, value in reported.items():
-        assert metrics[name] == pytest.approx(value, rel=1e-12), name
+    for name, value in reported.items():  # the file keeps six significant digits (`io.write_metrics`)
+        assert metrics[name] == pytest.approx(value, rel=1e-5), name
     assert metrics["epochs_trained"] == CLI_EPOCHS
     assert metrics["final_train_loss"] == pytest.approx(history["train_loss"][-1], rel=1e-6)
 
