@@ -119,17 +119,18 @@ def test_imm_tracks_a_two_radar_recording_with_only_the_tuned_filters(params, tm
     np.testing.assert_allclose(tracks["range_m"], np.linalg.norm(position - site, axis=1), rtol=1e-12)
 
 
-def test_two_missed_scans_end_a_young_track_under_the_thesis_rule_and_not_under_m_of_n(params, tmp_path,
-                                                                                      filters_only):
+def test_two_missed_scans_end_a_young_track_under_the_thesis_rule_and_not_under_m_of_n_or_the_sprt(
+        params, tmp_path, filters_only):
     """A straight target seen 3 scans, missed 2 (plots dropped, say for a garbled Mode C), seen 5 more:
     the thesis's rule deletes the candidate track at its first silence, so the target gets a second
-    track; `--management m_of_n` keeps one track through all 8 plots (shared/cases 04)."""
+    track; `--management m_of_n` keeps one track through all 8 plots (shared/cases 04), and so does
+    `--management sprt`, which confirms at the third plot and deletes a confirmed track at its fifth miss."""
     features = np.delete(tf.straight_features(params.radar, (20e3, 25e3, 10668.0), (200.0, 0.0, 0.0), 10), [3, 4],
                          axis=0)
     plots = tf.measurement_table(features, np.arange(len(features)), params.radar, 1)
     recording = tf.write_recording(tmp_path / "recording", plots, tf.radar_table(1, params.radar))
     tracks = {}
-    for rule in ("thesis", "m_of_n"):
+    for rule in ("thesis", "m_of_n", "sprt"):
         out = tmp_path / f"{rule}.parquet"
         assert cli.main(["track", "--plots", str(recording[0]), "--radar", str(recording[1]), "--models",
                          str(filters_only), "--method", "kalman_cv", "--management", rule, "--out", str(out)]) == 0
@@ -137,6 +138,8 @@ def test_two_missed_scans_end_a_young_track_under_the_thesis_rule_and_not_under_
     assert tracks["thesis"]["track_id"] == [0, 0, 0, 1, 1, 1, 1, 1]
     assert tracks["m_of_n"]["track_id"] == [0] * 8
     assert tracks["m_of_n"]["status"][-1] == "confirmed"
+    assert tracks["sprt"]["track_id"] == [0] * 8
+    assert tracks["sprt"]["status"] == ["tentative", "tentative"] + ["confirmed"] * 6
 
 
 def test_the_summary_counts_tracks_per_radar_as_scenario_and_track_id(params, tmp_path, filters_only):
