@@ -28,10 +28,10 @@ from pathlib import Path
 
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+REPOSITORY = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPOSITORY))
 from pipeline.io import TIMING_KEYS  # noqa: E402  (a tracker's speed; a tuning's or training's duration)
 
-REPOSITORY = Path(__file__).resolve().parent.parent
 PINNED = REPOSITORY / "tests" / "tiny_reports.json"
 TARGET = "evaluate"  # the tiny run is `dvc repro evaluate` (tests/servers.py)
 COMPARED = ("routes", "simulate", "scenes", "windows", "data_report", "tune_kalman")  # the same bytes on any machine
@@ -104,7 +104,6 @@ def main() -> None:
     where.add_argument("--repository", type=Path, help="a copy in which the tiny pipeline already ran")
     parser.add_argument("--write", action="store_true", help=f"pin the digests in {PINNED.relative_to(REPOSITORY)}")
     args = parser.parse_args()
-    sys.path.insert(0, str(REPOSITORY))
     repository = args.repository
     if args.run:
         from tests.servers import repro_tiny_pipeline
