@@ -201,6 +201,47 @@ def updated(settings: FilterSettings, state: BatchState, z: np.ndarray, R: np.nd
     return BatchState(x, P, mu)
 
 
+def collapsed(prior: BatchState, posteriors: BatchState, track: np.ndarray, weights: np.ndarray,
+              missed: np.ndarray) -> BatchState:
+    """The probabilistic data association update of T tracks: each track's hypotheses, none of its
+    plots its own (`prior`, T tracks, probability `missed` (T,)) or plot h its own (`posteriors`, H
+    updates, each of track `track[h]` with probability `weights[h]`), merged per motion model into
+    one Gaussian by moment matching.
+
+    The mixture over (hypothesis, model) pairs has weights beta_h mu_{h,r}, mu_{h,r} being model r's
+    probability after hypothesis h's update (`updated`); model r's merged mean and covariance are
+    its hypotheses' weighted mean and spread, and its probability their summed weight. For a
+    single filter this is the PDA update (Bar-Shalom, Daum & Huang, "The probabilistic data
+    association filter", IEEE Control Systems 29(6), 2009, eqs. 36-41: x = sum_h beta_h x_h,
+    P = beta_0 P^- + sum_h beta_h P_h + the spread of the means); for the IMM, the hypotheses of
+    each model merged as the IMM-PDAF's model-conditioned PDA updates are (Bar-Shalom, Willett &
+    Tian, "Tracking and Data Fusion", YBS 2011, 3.4), the hypotheses' probabilities being common to
+    the models (computed from the combined prediction: `pipeline.tracker.jpda`). Shapes as
+    BatchState's; the result holds T tracks."""
+    tracks, hypotheses = len(missed), len(track)
+    of_track = np.zeros((tracks, hypotheses))  # sums over each track's hypotheses as one product: np.add.at is slower
+    of_track[track, np.arange(hypotheses)] = 1.0
+
+    def summed(prior_part: np.ndarray, posterior_part: np.ndarray) -> np.ndarray:
+        """Each track's `prior_part` (T, M, ...) plus the sum of its hypotheses' `posterior_part` (H, M, ...)."""
+        return prior_part + (of_track @ posterior_part.reshape(hypotheses, -1)).reshape(prior_part.shape)
+
+    weight = weights[:, None] * posteriors.mu                                       # (H, M)
+    prior_weight = missed[:, None] * prior.mu                                       # (T, M)
+    total = summed(prior_weight, weight)
+    held = total > 0.0  # a model no hypothesis leaves any weight keeps its prior (mu underflowed to 0)
+    safe = np.where(held, total, 1.0)
+    x = np.where(held[..., None], summed(prior_weight[..., None] * prior.x, weight[..., None] * posteriors.x)
+                 / safe[..., None], prior.x)
+    prior_offset = prior.x - x
+    posterior_offset = posteriors.x - x[track]
+    P_sum = summed(prior_weight[..., None, None] * (prior.P + prior_offset[..., :, None] * prior_offset[..., None, :]),
+                   weight[..., None, None] * (posteriors.P + posterior_offset[..., :, None]
+                                              * posterior_offset[..., None, :]))
+    P = np.where(held[..., None, None], P_sum / safe[..., None, None], prior.P)
+    return BatchState(x, P, total / total.sum(axis=1, keepdims=True))
+
+
 def combined(mu: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mode-weighted mean (..., k) and covariance (..., k, k) of the models' means x (..., M, k)
     and covariances P (..., M, k, k) with probabilities mu (..., M) (filterpy's

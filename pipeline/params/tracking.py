@@ -78,6 +78,9 @@ class Candidates(Section):
     young_track_plots_ae: int = knob("... and for the autoencoder method", "windows.autoencoder_length")
     kalman_gate_probability: float = knob("the classical trackers' chi-square gate (3 degrees of freedom)", 0.0, 1.0,
                                           open_low=True, open_high=True)
+    jpda_detection_probability: float = knob("JPDA (the *_jpda methods, pipeline/tracker/jpda.py): P_D, an aircraft's "
+                                             "plot in a scan", 0.0, 1.0, open_low=True, open_high=True)
+    jpda_clutter_density_per_m3: float = positive("JPDA: lambda, false plots per cubic metre in a scan")
 
 
 @dataclass(frozen=True)

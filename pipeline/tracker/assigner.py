@@ -17,6 +17,13 @@ first (`rows[0]`), which every track keeps (`pipeline.tracker.tracks`).
   runs between radar changes.
 - `TrueAssociation` (the oracle): each plot joins the candidate track started by a plot of the
   same target (the plot table's `target_id`); a false plot joins none. The errors play no part.
+- `JointProbabilisticPerScan` (`pipeline.tracker.jpda`): global nearest neighbour's batches and
+  choices, and besides them the joint association probabilities of each scan's mature tracks and
+  the plots in their gates (`hypotheses`), with which the loop updates those tracks (a soft
+  assigner).
+
+`hypotheses(tracks, rows, candidates, choices)` gives a soft assigner's `Hypotheses` for a batch,
+after its choices; the hard assigners give None, and their tracks take the one plot chosen.
 """
 
 from __future__ import annotations
@@ -48,6 +55,26 @@ class Candidates(NamedTuple):
     first: int
 
 
+class Hypotheses(NamedTuple):
+    """The association hypotheses of a batch's T mature tracks that have a plot in their gate, and
+    their probabilities (joint probabilistic data association): the tracks' slots (T,); each
+    track's probability that none of the batch's plots is its own (T,), `missed`; and the H
+    (track, plot) hypotheses, each with its track's place in `slots` (H,), its plot row (H,) and
+    its probability (H,), `weights` (a track's `missed` and weights sum to 1). Each track is
+    updated at the time of its `reference` plot (T,), from row `reference_index` (T,) of
+    `prediction`, the batch's prediction: the plot its track was chosen for, else its most probable
+    one."""
+
+    slots: np.ndarray
+    missed: np.ndarray
+    track: np.ndarray
+    rows: np.ndarray
+    weights: np.ndarray
+    reference: np.ndarray
+    reference_index: np.ndarray
+    prediction: Prediction
+
+
 class Assigner(Protocol):
     def batches(self, plots: Plots) -> np.ndarray:
         """Boundaries (B + 1,) of the B runs of plot rows that are associated together."""
@@ -55,12 +82,22 @@ class Assigner(Protocol):
     def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
         """For each plot of `rows` (with its `candidates`), the chosen candidate or None."""
 
+    def hypotheses(self, tracks: LiveTracks, rows: range, candidates: list[Candidates],
+                   choices: list[int | None]) -> Hypotheses | None:
+        """A soft assigner's hypotheses for the batch after its `choices`; None for a hard assigner."""
+
 
 def _nearest(candidates: Candidates) -> int | None:
     if not len(candidates.slots):
         return None
     best = int(np.argmin(candidates.errors))
     return best if np.isfinite(candidates.errors[best]) else None
+
+
+def _hard(self, tracks: LiveTracks, rows: range, candidates: list[Candidates],
+          choices: list[int | None]) -> None:
+    """A hard assigner's `hypotheses`: none, each chosen track takes its plot."""
+    return None
 
 
 class NearestPerPlot:
@@ -71,6 +108,8 @@ class NearestPerPlot:
 
     def assign(self, tracks: LiveTracks, rows: range, candidates: list[Candidates]) -> list[int | None]:
         return [_nearest(c) for c in candidates]
+
+    hypotheses = _hard
 
 
 class GlobalNearestPerScan:
@@ -118,6 +157,8 @@ class GlobalNearestPerScan:
             choices[plot] = place
         return choices
 
+    hypotheses = _hard
+
 
 class TrueAssociation:
     """The oracle: each plot joins the candidate track of its own target."""
@@ -134,3 +175,5 @@ class TrueAssociation:
             own = [n for n, slot in enumerate(c.slots.tolist()) if target[tracks.tracks[slot].rows[0]] == target[row]]
             choices.append(own[0] if own and target[row] != NO_TARGET else None)
         return choices
+
+    hypotheses = _hard

@@ -29,6 +29,10 @@ memory does not grow with a track's age (`pipeline.tracker.tracks`). A track's p
   prediction, in one call: positions (P, 3) and covariances (P, 3, 3) or None. The loop makes a
   scan's updates so; a track updated by it and then deleted may see its slot `start`ed again.
 
+- `update_mixtures(tracks, hypotheses)` (estimators composed with a soft assigner, `pipeline.tracker.jpda`):
+  the T tracks of a batch's `Hypotheses` (`pipeline.tracker.assigner`) each updated with all its plots,
+  weighted by their probabilities, in one call: positions (T, 3) and covariances (T, 3, 3).
+
 A new estimator is one module with a class offering these, and one registry entry
 (`pipeline.tracker.registry`); docs/architecture.md has the worked example.
 """

@@ -24,6 +24,7 @@ import numpy as np
 from pipeline.filters import batch_filters, motion_models
 from pipeline.filters.batch_filters import BatchState
 from pipeline.filters.classical_filters import FilterSettings
+from pipeline.tracker.assigner import Hypotheses
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.tracks import LiveTracks
 
@@ -143,6 +144,21 @@ class KalmanEstimator:
         plot of `rows` (P,) from row `indices` (P,) of `prediction`: the new positions (P, 3) and
         covariances (P, 3, 3)."""
         return self._updated(tracks, slots, rows, prediction, indices)
+
+    def update_mixtures(self, tracks: LiveTracks, hypotheses: Hypotheses) -> tuple[np.ndarray, np.ndarray]:
+        """The filters of the T tracks of `hypotheses` updated with all their plots at once, each weighted by
+        its probability (a soft assigner's: `pipeline.tracker.jpda`): every hypothesis's update from the
+        prediction at the track's reference plot, merged per model (`batch_filters.collapsed`), stored at
+        the reference plot's time. Returns the new positions (T, 3) and covariances (T, 3, 3)."""
+        plots, moved = tracks.plots, hypotheses.prediction.state
+        index = hypotheses.reference_index
+        prior = BatchState(moved.x[index], moved.P[index], moved.mu[index])
+        each = index[hypotheses.track]
+        posteriors = batch_filters.updated(self.settings, BatchState(moved.x[each], moved.P[each], moved.mu[each]),
+                                           plots.position[hypotheses.rows], plots.covariance[hypotheses.rows])
+        merged = batch_filters.collapsed(prior, posteriors, hypotheses.track, hypotheses.weights, hypotheses.missed)
+        self._store(hypotheses.slots, merged, plots.time[hypotheses.reference])
+        return batch_filters.position_estimates(merged)
 
     def _updated(self, tracks: LiveTracks, slots: np.ndarray | slice, rows: np.ndarray | slice,
                  prediction: Prediction, indices: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:

@@ -44,6 +44,7 @@ TUNED_FILTERS = "kalman_tuned"
 LSTM_UPDATE = "lstm_update"  # the LSTM update on a Kalman prediction (models/lstm_update.pt)
 KALMAN_NET = "kalman_net"  # the network-scaled Kalman filter (issue 17)
 GLOBAL_SUFFIX = "_gnn"  # a method with scan-wise global-nearest-neighbour association
+JPDA_SUFFIX = "_jpda"   # ... with scan-wise joint probabilistic data association (the classical filters)
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
@@ -122,16 +123,24 @@ def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) 
                         params.association.young_track_plots_ae, window_m, params, learned=(False, True))
 
 
-def _classical(name: str, kind: str, global_nearest: bool):
-    """A tuned filter of `kind` with the chi-square gate, nearest neighbour per plot or per scan."""
+def _classical(name: str, kind: str, association: str):
+    """A tuned filter of `kind` with the chi-square gate; nearest neighbour per plot (`association` ''),
+    global nearest neighbour per scan (GLOBAL_SUFFIX) or joint probabilistic data association per scan
+    (JPDA_SUFFIX, with the knobs `tracker.association.jpda_*`)."""
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
         from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.gate import ChiSquareGate
+        from pipeline.tracker.jpda import JointProbabilisticPerScan
         from pipeline.tracker.kalman import KalmanEstimator
+        gating = params.association
+        assigners = {"": None, GLOBAL_SUFFIX: GlobalNearestPerScan,
+                     JPDA_SUFFIX: lambda: JointProbabilisticPerScan(gating.jpda_detection_probability,
+                                                                    gating.kalman_gate_probability,
+                                                                    gating.jpda_clutter_density_per_m3)}
+        assigner = assigners[association]
         return _composition(name, KalmanEstimator(models[TUNED_FILTERS][kind]),
-                            ChiSquareGate(params.association.kalman_gate_probability),
-                            params.association.young_track_plots, window_m, params,
-                            assigner=GlobalNearestPerScan() if global_nearest else None)
+                            ChiSquareGate(gating.kalman_gate_probability), gating.young_track_plots, window_m, params,
+                            assigner=None if assigner is None else assigner())
     return compose
 
 
@@ -184,14 +193,13 @@ def _oracle(models: "Models", params: "TrackerParams", window_m: float, seed: Se
 
 def _classical_methods() -> list[Method]:
     methods = []
-    for global_nearest in (False, True):
+    for association, suffix_label, extra_cost in (("", "", 1.0), (GLOBAL_SUFFIX, " + GNN", 1.1),
+                                                  (JPDA_SUFFIX, " + JPDA", 1.5)):
         for base, kind, label, cost in (("kalman_cv", "cv", "Kalman CV", 1.5), ("kalman_ca", "ca", "Kalman CA", 1.5),
                                         ("imm", "imm", "IMM", 2.0), ("imm_ct", "imm_ct", "IMM with turns", 3.0),
                                         ("imm_ca_ct", "imm_ca_ct", "IMM with CA and turns", 4.0)):
-            name = base + GLOBAL_SUFFIX if global_nearest else base
-            methods.append(Method(name, label + " + GNN" if global_nearest else label, CLASSICAL, (TUNED_FILTERS,),
-                                  _classical(name, kind, global_nearest), cost * 1.1 if global_nearest else cost,
-                                  kind))
+            methods.append(Method(base + association, label + suffix_label, CLASSICAL, (TUNED_FILTERS,),
+                                  _classical(base + association, kind, association), cost * extra_cost, kind))
     return methods
 
 

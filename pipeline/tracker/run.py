@@ -20,6 +20,11 @@ roles the loop still scores a few of them at once, ahead (`_track_ahead`), and s
 again, alone, when a track that changed in between (`LiveTracks.changed`) was or now is among its
 candidates: the same updates to the bit, with one prediction and gate call for most plots.
 
+A soft assigner (joint probabilistic data association, `pipeline.tracker.jpda`) gives, beside its
+choices, the probabilities of each mature track's plots (`Assigner.hypotheses`): the loop then updates
+every such track with all of them in one call (`Estimator.update_mixtures`) before the plots are taken,
+and a chosen plot records its track's update; a track that was chosen by no plot is updated all the same.
+
 A composition may carry a `RefusalWatch` (`pipeline.tracker.refusals`): the loop hands it each
 plot with its final candidates, and it counts the plots a learned gate refused that the plain
 window would have taken (issue 27); the caller reads and reports its counts.
@@ -39,7 +44,7 @@ import numpy as np
 
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import Plots
-from pipeline.tracker.assigner import Assigner, Candidates
+from pipeline.tracker.assigner import Assigner, Candidates, Hypotheses
 from pipeline.tracker.estimator import Estimator, Prediction
 from pipeline.tracker.gate import Gate
 from pipeline.tracker.management import TrackManagement
@@ -136,7 +141,7 @@ def track_chunks(chunks: Iterable[Plots], tracker: Composition) -> Iterator[dict
 def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: Updates) -> None:
     """One batch of plots: candidates, the assigner's choices, then plot by plot in time order
     management and the chosen track's update or a new track (module docstring)."""
-    estimator, plots = tracker.estimator, live.plots
+    plots = live.plots
     live.manage(plots.time[rows.start])
     if len(rows) > 1 and tracker.pairwise:
         candidates = _candidates(live, rows, tracker)
@@ -145,7 +150,7 @@ def _track_batch(live: LiveTracks, rows: range, tracker: Composition, updates: U
     _count_refusals(live, rows, candidates, tracker)
     choices = tracker.assigner.assign(live, rows, candidates)
     chosen = [None if choice is None else _chosen(live, c, choice) for c, choice in zip(candidates, choices)]
-    ahead = _updated_ahead(live, rows, candidates, chosen, estimator) if len(rows) > 1 and tracker.pairwise else {}
+    ahead = _updated_before(live, rows, candidates, choices, chosen, tracker)
     for row, c, choice in zip(rows, candidates, chosen):
         live.manage(plots.time[row])
         _take(live, row, c, choice, tracker, updates, ahead)
@@ -182,7 +187,9 @@ def _track_ahead(live: LiveTracks, rows: range, tracker: Composition, updates: U
             c = _candidates(live, range(row, row + 1), tracker)[0]
         _count_refusals(live, range(row, row + 1), [c], tracker)
         choice = tracker.assigner.assign(live, range(row, row + 1), [c])[0]
-        _take(live, row, c, None if choice is None else _chosen(live, c, choice), tracker, updates, {})
+        chosen = None if choice is None else _chosen(live, c, choice)
+        ahead = _updated_before(live, range(row, row + 1), [c], [choice], [chosen], tracker)
+        _take(live, row, c, chosen, tracker, updates, ahead)
 
 
 def _count_refusals(live: LiveTracks, rows: range, candidates: list[Candidates], tracker: Composition) -> None:
@@ -245,6 +252,29 @@ def _take(live: LiveTracks, row: int, c: Candidates, choice: tuple[int, int, int
 def _prediction_row(c: Candidates, at: int) -> int:
     """The row of `c.prediction` that holds candidate `at` (a mature one: only those are predicted)."""
     return c.first + int(np.count_nonzero(c.mature[:at]))
+
+
+def _updated_before(live: LiveTracks, rows: range, candidates: list[Candidates], choices: list[int | None],
+                    chosen: list[tuple | None], tracker: Composition) -> dict[int, tuple[np.ndarray, np.ndarray | None]]:
+    """The updates made for the batch's plots before they are taken in time order, by plot row: a soft
+    assigner's (`_updated_jointly`), or a pairwise batch's (`_updated_ahead`), else none."""
+    hypotheses = tracker.assigner.hypotheses(live, rows, candidates, choices)
+    if hypotheses is not None:
+        return _updated_jointly(live, rows, candidates, chosen, hypotheses, tracker.estimator)
+    if len(rows) > 1 and tracker.pairwise:
+        return _updated_ahead(live, rows, candidates, chosen, tracker.estimator)
+    return {}
+
+
+def _updated_jointly(live: LiveTracks, rows: range, candidates: list[Candidates], chosen: list[tuple | None],
+                     hypotheses: Hypotheses, estimator: Estimator) -> dict[int, tuple[np.ndarray, np.ndarray | None]]:
+    """Every track of a soft assigner's `hypotheses` updated with all its plots (`update_mixtures`), in
+    one call; the update recorded at each plot chosen for a mature track. A chosen track deleted before its
+    plot's turn was updated for nothing, as in `_updated_ahead`."""
+    positions, covariances = estimator.update_mixtures(live, hypotheses)
+    place = {slot: k for k, slot in enumerate(hypotheses.slots.tolist())}
+    return {row: (positions[place[choice[0]]], covariances[place[choice[0]]])
+            for row, c, choice in zip(rows, candidates, chosen) if choice is not None and c.mature[choice[2]]}
 
 
 def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], chosen: list[tuple | None],
