@@ -179,3 +179,19 @@ def test_every_tuned_filter_has_a_jpda_method():
 def test_impossible_probabilities_are_refused(probabilities):
     with pytest.raises(ValueError, match="JPDA"):
         jpda.JointProbabilisticPerScan(*probabilities)
+
+
+def test_network_scaled_filter_with_pinned_scales_is_the_kalman_filter_under_jpda(params):
+    """`kalman_net_jpda` with a network whose scales are all 1 (`pinned_network`) and `kalman_cv_jpda` (the
+    same CV filter) on eight crossing flights among clutter: the same updates, plot for plot and track for
+    track, positions to a micrometre, so the soft assigner's update is the same merge for both estimators."""
+    from tests.test_kalman_net_tracker import pinned_network
+    plots = crossing_flights_among_clutter(params)
+    models = Models({"kalman_tuned": tf.untuned_filters(params), "kalman_net": pinned_network(params)})
+    network, classical = (track(plots, registry.compose(name, models, params.tracker, 4000.0, 0))
+                          for name in ("kalman_net_jpda", "kalman_cv_jpda"))
+    for column in ("track_id", "plot_id"):
+        np.testing.assert_array_equal(network[column], classical[column])
+    assert (network["association"] == "kalman_net_jpda").sum() > 50
+    np.testing.assert_allclose(positions(network), positions(classical), rtol=0.0, atol=1e-6)
+    np.testing.assert_allclose(network["position_covariance"], classical["position_covariance"], rtol=1e-9)

@@ -38,7 +38,10 @@ reference plot (the chosen one, else its most probable), from the prediction at 
 competing plots of a scan come within hundredths of a second of each other (the antenna sweeps a few
 degrees), so their innovations are taken against that one prediction, as Stone Soup's tracker takes a
 batch's detections at one time (`pipeline.peers.stone_soup`). The update itself is the estimator's
-(`update_mixtures`; the Kalman core's `batch_filters.collapsed`).
+(`update_mixtures`): each hypothesis's update merged per motion model (`batch_filters.collapsed`), for the
+tuned classical filters (`kalman_cv_jpda` ... `imm_ca_ct_jpda`) and the network-scaled filter
+(`kalman_net_jpda`). The LSTM update has none: its posterior is a network's output over MC-dropout copies,
+not a Gaussian per hypothesis, and a mixture of such outputs would be a method of our own, not JPDA.
 """
 
 from __future__ import annotations

@@ -56,6 +56,7 @@ from pipeline.filters.batch_filters import BatchState
 from pipeline.filters.torch_filters import State, StepScales
 from pipeline.learning import batch_rows, devices, step_runtime
 from pipeline.learning.kalman_net import KalmanNet, Memory
+from pipeline.tracker.assigner import Hypotheses
 from pipeline.tracker.estimator import Prediction
 from pipeline.tracker.gate import ChiSquareGate, Scores
 from pipeline.tracker.tracks import LiveTracks
@@ -237,6 +238,30 @@ class KalmanNetEstimator:
                               (step.scales.q, step.scales.r, step.scales.manoeuvre)))
         self._store(slots, State(x, P, mu), scales, _rows(step.memory, at), tracks.plots.time[rows])
         return position.cpu().numpy(), covariance.cpu().numpy()
+
+    def update_mixtures(self, tracks: LiveTracks, hypotheses: Hypotheses) -> tuple[np.ndarray, np.ndarray]:
+        """The filters of the T tracks of `hypotheses` updated with all their plots at once, each weighted by
+        its probability (a soft assigner's: `pipeline.tracker.jpda`). All of a track's hypotheses resume from
+        the `predict_plot` step towards its reference plot: that prior, the network's R scale (applied to each
+        plot's own R0) and its memory, which the track keeps; each hypothesis's update is merged per model
+        as the classical filters' are (`batch_filters.collapsed`), stored at the reference plot's time.
+        Returns the new positions (T, 3) and covariances (T, 3, 3)."""
+        step: PlotStep = hypotheses.prediction.state
+        at = self._index(hypotheses.reference_index)
+        each = self._index(hypotheses.reference_index[hypotheses.track])
+        z, R0 = self._measured(tracks, hypotheses.rows)
+        with torch.no_grad():
+            x, P, mu, _, _ = self._update(step.prior.x[each], step.prior.P[each], step.prior.mu[each], z,
+                                          R0 * step.scales.r[each][:, None, None])
+        prior = BatchState(*(values[at].cpu().numpy() for values in (step.prior.x, step.prior.P, step.prior.mu)))
+        merged = batch_filters.collapsed(prior, BatchState(x.cpu().numpy(), P.cpu().numpy(), mu.cpu().numpy()),
+                                         hypotheses.track, hypotheses.weights, hypotheses.missed)
+        scales = StepScales(*(None if value is None else value[at] for value in
+                              (step.scales.q, step.scales.r, step.scales.manoeuvre)))
+        state = State(*(torch.as_tensor(values, dtype=self.spec.dtype, device=self.device)
+                        for values in (merged.x, merged.P, merged.mu)))
+        self._store(hypotheses.slots, state, scales, _rows(step.memory, at), tracks.plots.time[hypotheses.reference])
+        return batch_filters.position_estimates(merged)
 
 
 def _rows(memory: Memory, index: Tensor | slice) -> Memory:

@@ -123,24 +123,30 @@ def _ae(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) 
                         params.association.young_track_plots_ae, window_m, params, learned=(False, True))
 
 
+def _assigner(association: str, params: "TrackerParams") -> "Assigner | None":
+    """The assigner of a method's `association` suffix: None (nearest neighbour per plot, the default) for
+    '', global nearest neighbour per scan for GLOBAL_SUFFIX, JPDA per scan for JPDA_SUFFIX (with the knobs
+    `tracker.association.jpda_*` and the chi-square gate's probability)."""
+    from pipeline.tracker.assigner import GlobalNearestPerScan
+    from pipeline.tracker.jpda import JointProbabilisticPerScan
+    gating = params.association
+    if association == GLOBAL_SUFFIX:
+        return GlobalNearestPerScan()
+    if association == JPDA_SUFFIX:
+        return JointProbabilisticPerScan(gating.jpda_detection_probability, gating.kalman_gate_probability,
+                                         gating.jpda_clutter_density_per_m3)
+    return None
+
+
 def _classical(name: str, kind: str, association: str):
-    """A tuned filter of `kind` with the chi-square gate; nearest neighbour per plot (`association` ''),
-    global nearest neighbour per scan (GLOBAL_SUFFIX) or joint probabilistic data association per scan
-    (JPDA_SUFFIX, with the knobs `tracker.association.jpda_*`)."""
+    """A tuned filter of `kind` with the chi-square gate, under the assigner of `association` (`_assigner`)."""
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-        from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.gate import ChiSquareGate
-        from pipeline.tracker.jpda import JointProbabilisticPerScan
         from pipeline.tracker.kalman import KalmanEstimator
         gating = params.association
-        assigners = {"": None, GLOBAL_SUFFIX: GlobalNearestPerScan,
-                     JPDA_SUFFIX: lambda: JointProbabilisticPerScan(gating.jpda_detection_probability,
-                                                                    gating.kalman_gate_probability,
-                                                                    gating.jpda_clutter_density_per_m3)}
-        assigner = assigners[association]
         return _composition(name, KalmanEstimator(models[TUNED_FILTERS][kind]),
                             ChiSquareGate(gating.kalman_gate_probability), gating.young_track_plots, window_m, params,
-                            assigner=None if assigner is None else assigner())
+                            assigner=_assigner(association, params))
     return compose
 
 
@@ -170,15 +176,15 @@ def _lstm_update(global_nearest: bool):
     return compose
 
 
-def _kalman_net(name: str, global_nearest: bool):
-    """The network-scaled filter with the chi-square gate on its own scales, nearest neighbour per plot or per scan."""
+def _kalman_net(name: str, association: str):
+    """The network-scaled filter with the chi-square gate on its own scales; nearest neighbour per plot
+    (`association` ''), global nearest neighbour per scan (GLOBAL_SUFFIX) or JPDA per scan (JPDA_SUFFIX)."""
     def compose(models: "Models", params: "TrackerParams", window_m: float, seed: Seed) -> "Composition":
-        from pipeline.tracker.assigner import GlobalNearestPerScan
         from pipeline.tracker.kalman_net_estimator import KalmanNetEstimator, PlotScaledGate
         estimator = KalmanNetEstimator(models[KALMAN_NET], runtime=params.learned_runtime, device=params.device)
         return _composition(name, estimator, PlotScaledGate(estimator, params.association.kalman_gate_probability),
                             params.association.young_track_plots, window_m, params,
-                            assigner=GlobalNearestPerScan() if global_nearest else None, learned=(False, True))
+                            assigner=_assigner(association, params), learned=(False, True))
     return compose
 
 
@@ -212,9 +218,11 @@ METHODS: dict[str, Method] = {method.name: method for method in [
     *(Method(name, label, NEURAL, (LSTM_UPDATE,), _lstm_update(gnn), cost)
       for name, label, gnn, cost in ((LSTM_UPDATE, "LSTM update", False, 3.0),
                                      (LSTM_UPDATE + GLOBAL_SUFFIX, "LSTM update + GNN", True, 3.0))),
-    *(Method(name, label, NEURAL, (KALMAN_NET,), _kalman_net(name, gnn), cost)
-      for name, label, gnn, cost in (("kalman_net", "Network-scaled KF", False, 8.0),
-                                     ("kalman_net" + GLOBAL_SUFFIX, "Network-scaled KF + GNN", True, 8.8))),
+    *(Method(KALMAN_NET + association, label, NEURAL, (KALMAN_NET,), _kalman_net(KALMAN_NET + association, association),
+             cost)
+      for association, label, cost in (("", "Network-scaled KF", 8.0),
+                                       (GLOBAL_SUFFIX, "Network-scaled KF + GNN", 8.8),
+                                       (JPDA_SUFFIX, "Network-scaled KF + JPDA", 10.0))),
     Method("oracle", "oracle (true association, IMM)", REFERENCE, (TUNED_FILTERS,), _oracle, 0.9, "imm"),
 ]}
 TRACKERS = tuple(name for name, method in METHODS.items() if method.family != REFERENCE)
