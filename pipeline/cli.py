@@ -90,7 +90,8 @@ def _evaluate_sites(args: argparse.Namespace) -> None:
 
 def _peers(args: argparse.Namespace) -> None:
     from pipeline.stages.peers_stage import run_peers
-    run_peers(load_params(args.params), Path(args.simulated), Path(args.routes), Path(args.models), Path(args.reports))
+    run_peers(load_params(args.params), Path(args.simulated), Path(args.routes), Path(args.scenes), Path(args.models),
+              Path(args.reports))
 
 
 def _evaluate_scenes(args: argparse.Namespace) -> None:
@@ -204,6 +205,12 @@ COMMANDS = {
                          "python -m pipeline train-kalman-net --simulated data/simulated --windows data/windows "
                          "--models models --reports reports",
                          ["params", ("kind", "kalman_net"), "simulated", "windows", "models", "reports"]),
+    "train-confirmation": (_train, "Train the learned track confirmation's network on the candidate tracks (aircraft "
+                           "and clutter) a classical tracker makes on a split's plots, and set its threshold's "
+                           "clutter sums on held-out scenarios (Lightning, one MLflow run).",
+                           "python -m pipeline train-confirmation --simulated data/simulated --models models "
+                           "--reports reports",
+                           ["params", ("kind", "confirmation"), "simulated", "models", "reports"]),
     "train-association": (_train, "Train the seed's track-to-track association network on freshly "
                           "simulated two-radar scenes and score it with the statistical, double-threshold and "
                           "bias-robust methods against the bias (Lightning, one MLflow run).",
@@ -235,10 +242,11 @@ COMMANDS = {
                         "python -m pipeline evaluate-scenes --scenes data/scenes --models models --reports reports",
                         ["params", "scenes", "models", "reports"]),
     "peers": (_peers, "The field's peers on the same plots: Stone Soup's GNN and JPDA, our runs of peers.runs and the "
-              "oracle on test scenarios and a real-traffic scene, scored by GOSPA and the surveillance scorecard "
-              "beside the ECAC and ED-129C figures, with intervals (reports/peers.json, reports/peers.md).",
-              "python -m pipeline peers --simulated data/simulated --routes data/routes --models models "
-              "--reports reports", ["params", "simulated", "routes", "models", "reports"]),
+              "oracle on test scenarios, many-aircraft scenes and a real-traffic scene, scored by GOSPA and the "
+              "surveillance scorecard beside the ECAC and ED-129C figures, with intervals (reports/peers.json, "
+              "reports/peers.md).",
+              "python -m pipeline peers --simulated data/simulated --routes data/routes --scenes data/scenes "
+              "--models models --reports reports", ["params", "simulated", "routes", "scenes", "models", "reports"]),
     "track": (_track, "Track a recording (Parquet plots + radar description, or ASTERIX CAT048/CAT034) with the "
               "trained networks; writes one row per track update.",
               "python -m pipeline track --plots data/simulated/test/plots.parquet "
@@ -348,7 +356,9 @@ def _add_option(command: argparse.ArgumentParser, option: str | tuple[str, str])
                              help="track management rule (default: params' tracker.management.rule): thesis "
                                   "deletes a track not yet confirmed at its first silence (two missed scans), m_of_n "
                                   "confirms at M hits of N scans and deletes a confirmed track after "
-                                  "tracker.management.delete_after_s")
+                                  "tracker.management.delete_after_s, sprt runs the sequential probability ratio "
+                                  "test on hits and misses, learned weighs each hit of M of N by the confirmation "
+                                  "network (models/confirmation.pt, `dvc repro train_confirmation`)")
         command.add_argument("--out", required=True, help="output Parquet, one row per track update")
         command.add_argument("--confirmed-only", action="store_true",
                              help="write only the updates of confirmed tracks (the summary still counts every "

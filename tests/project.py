@@ -36,6 +36,7 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
         tree["training"][network]["lr_decay_patience"] = 1
     tree["kalman_net"].update(epochs=1, baseline_epochs=1, segment_plots=16, truncation_steps=8)  # seconds
     tree["association"].update(epochs=1, scenes_per_epoch=16, eval_scenes=4, eval_bias_m=[0.0, 200.0])  # seconds
+    tree["confirmation"].update(epochs=3, validation_every=3)  # seconds; every third training scenario held out
     tree["fusion"].update(sweep_scenes=1, sweep_bias_m=[0.0, 200.0])  # the bias sweep in seconds
     tree["lstm_update"].update(epochs=1, segment_plots=16, truncation_steps=8, mc_samples=4, validation_fraction=0.2,
                                 calibration_ages=4)
@@ -45,7 +46,8 @@ def tiny_params_tree(routes_per_strategy: int = 2) -> dict[str, Any]:
     tree["evaluate"]["example_scenarios"] = 1
     tree["evaluate"]["example_run"] = "via_4000"
     tree["evaluate"].update(seeds=2, bootstrap_replicates=200)  # a second draw of every scenario, in seconds
-    tree["peers"].update(scenarios_per_strategy=1, window_s=60.0, runs=[])  # Stone Soup on a few hundred plots
+    tree["peers"].update(scenarios_per_strategy=1, window_s=60.0, scenes=1, scene_window_s=60.0,  # Stone Soup on a
+                         runs=[])                                                                 # few hundred plots
     # evaluate_sites: the training site again (must give evaluate's metrics) and one across the world
     radar = tree["radar"]
     tree["evaluate"]["sites"] = [

@@ -98,19 +98,24 @@ def test_an_interval_read_back_as_null_is_shown_without_one() -> None:
 
 
 def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
-    """`dvc repro peers` in a copy of the tiny pipeline: every run on both materials, the scorecard's indicators
-    beside the reference figures, intervals over the test scenarios, the Markdown report."""
+    """`dvc repro peers` in a copy of the tiny pipeline: every run on every material (a test scenario per strategy,
+    the first minute of the one scene, the real traffic), the scorecard's indicators beside the reference figures,
+    intervals over the test scenarios and the scenes, the Markdown report."""
     from tests.servers import dvc
     repository = shutil.copytree(tiny_pipeline, tmp_path / "copy", symlinks=True)
+    dvc(repository, "repro", "--single-item", "scenes")  # the tiny pipeline runs up to evaluate, which needs none
     dvc(repository, "repro", "--single-item", "peers")
     report = io.read_metrics(repository / "reports" / "peers.json")
     params = tf.make_params()
     names = ["stone_soup_gnn", "stone_soup_jpda", "via_4000", "ae_5000", "kalman_cv_4000", "oracle_reference"]
-    assert set(report["materials"]) == {"test", "real_traffic"}
+    assert set(report["materials"]) == {"test", "scenes", "real_traffic"}
     test = report["materials"]["test"]
     assert len(test["recordings"]) == len(set(test["strategies"].values())) <= 4 and test["window_s"] == 60.0
     assert report["materials"]["real_traffic"]["targets"] > 10
-    for material in ("test", "real_traffic"):
+    scenes = report["materials"]["scenes"]
+    assert scenes["recordings"] == [0] and scenes["window_s"] == 60.0 and scenes["aircraft"] == {"0": 6}
+    assert 2 <= scenes["targets"] <= 6  # those in coverage in the first minute
+    for material in ("test", "scenes", "real_traffic"):
         assert sorted(report["runs"][material]) == sorted(names)
         for name, metrics in report["runs"][material].items():
             assert 0.0 <= metrics["GOSPA"] < math.inf, (material, name)  # GOSPA is no mean: it grows with aircraft
@@ -128,6 +133,7 @@ def test_the_stage_runs_in_the_tiny_pipeline(tiny_pipeline, tmp_path) -> None:
     low, high = intervals["runs"]["kalman_cv_4000"]["GOSPA"]
     assert math.isnan(low) or low <= report["runs"]["test"]["kalman_cv_4000"]["GOSPA"] <= high
     assert set(intervals["paired"]) == set(peers.PAIRED)
+    assert set(json.loads((repository / "reports" / "peers_intervals.json").read_text())) == {"test", "scenes"}
     text = (repository / "reports" / "peers.md").read_text()
     assert text.startswith(f"# {peers_tables.TITLE}") and "| stone_soup_jpda |" in text and "ED-129C" in text
     assert "posterior Cramér-Rao bound" in text and "before its first track (m)" in text
@@ -151,10 +157,11 @@ def test_score_of_a_track_table_is_the_benchs_scorecard(tiny_pipeline, tmp_path)
     from pipeline.surveillance import scorecard
     from tests.project import run_pipeline
     params = load_params(tiny_pipeline / "params.yaml")
-    whole = dataclasses.replace(params.peers, window_s=0.0,
+    whole = dataclasses.replace(params.peers, window_s=0.0, scenes=0,
                                 real_traffic=dataclasses.replace(params.peers.real_traffic, states=""))
     bench = peers.prepare(dataclasses.replace(params, peers=whole), tiny_pipeline / "data" / "simulated",
-                          tiny_pipeline / "data" / "routes", tiny_pipeline / "models", tiny_pipeline)
+                          tiny_pipeline / "data" / "routes", tiny_pipeline / "data" / "scenes", tiny_pipeline / "models",
+                          tiny_pipeline)
     scenario = bench.recordings[0].scene.scenario_id
     expected = scorecard.combined([peers.evaluate_unit(bench, "kalman_cv_4000", 0).card])
     split = tiny_pipeline / "data" / "simulated" / "test"

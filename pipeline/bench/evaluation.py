@@ -253,7 +253,8 @@ def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: P
     `evaluate.seeds` (`drawn_scenarios`), draw by draw, and every run, with what the runs need loaded (and
     checked against params)."""
     models = load_models(models_dir, params, [run.method for run in params.evaluate.runs]
-                         + [name for name in params.evaluate.references if name in registry.REFERENCES])
+                         + [name for name in params.evaluate.references if name in registry.REFERENCES],
+                         [None, *(run.management for run in params.evaluate.runs)])
     scenarios = read_scenarios(params, simulated_dir, routes_dir)
     for draw in range(1, params.evaluate.seeds):
         scenarios += drawn_scenarios(params, routes_dir, draw)

@@ -13,6 +13,9 @@ Materials (`MATERIALS`):
   aircraft is in coverage in the window, each from its first plot for `peers.window_s` (the simulate stage's
   plots, one draw): Stone Soup tracks about 100 plots a second, so the whole split (285,000 plots) would take
   hours a tracker;
+- `scenes`: the first `peers.scenes` many-aircraft scenes of the scenes stage whose aircraft are seen, each from
+  its first plot for `peers.scene_window_s` (30 aircraft in crossings, formations and manoeuvres: where JPDA is
+  the classical answer);
 - `real_traffic`: the aircraft of the OpenSky recording `peers.real_traffic.states` flown past params' radar moved
   to `peers.real_traffic`'s site (`pipeline.simulation.real_traffic`), one scene from its first plot for
   `peers.window_s`; each stretch of an aircraft's reports is a target of its own (an aircraft silent for
@@ -29,7 +32,8 @@ the confirmed updates (ours by the run's track management rule, Stone Soup's fro
   the radar's scan period) against the per-scan truth.
 
 A run's metrics on a material pool its recordings (`run_metrics`); on `test` their 95 % intervals and the
-paired intervals of `PAIRED` between runs resample the scenarios (`pipeline.bench.intervals`); the real-traffic
+paired intervals of `PAIRED` between runs resample the scenarios (`pipeline.bench.intervals`), and so on `scenes`
+the scenes; the real-traffic
 scene is one recording, so it has none. Units run on the bench's engine (`pipeline.bench.engine`), largest
 first; results are put together by run and recording, never in the order they finish.
 """
@@ -44,6 +48,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import pyarrow as pa
 
 from pipeline import io
 from pipeline.bench import engine, evaluation, intervals, scene_evaluation
@@ -54,7 +59,7 @@ from pipeline.params import STRATEGIES, Params, Radar
 from pipeline.peers import stone_soup
 from pipeline.progress import progress_logger
 from pipeline.recordings import opensky_states, plot_table
-from pipeline.simulation import real_traffic, routes, simulate
+from pipeline.simulation import real_traffic, routes, scenes, simulate
 from pipeline.surveillance import scorecard
 from pipeline.tracker import registry
 from pipeline.tracker.loading import load_models
@@ -63,8 +68,9 @@ from pipeline.tracker.updates import confirmed_associations
 
 log = logging.getLogger("pipeline")
 
-TEST, REAL_TRAFFIC = "test", "real_traffic"
-MATERIALS = (TEST, REAL_TRAFFIC)
+TEST, SCENES, REAL_TRAFFIC = "test", "scenes", "real_traffic"
+MATERIALS = (TEST, SCENES, REAL_TRAFFIC)
+RESAMPLED = (TEST, SCENES)  # the materials of several recordings, with intervals
 STONE_SOUP = "stone_soup"      # the family of Stone Soup's runs, and their names' prefix
 STONE_SOUP_COST = 60.0         # a Stone Soup run's cost per plot against a classical run's 1.5 (units largest first)
 REAL_TRAFFIC_FOLDER = "pipeline-real-traffic"
@@ -127,11 +133,14 @@ class Recording:
         return 60.0 / self.radar.rotation_rpm
 
 
-def _recordings(params: Params, material: str, folder: Path, flown: dict[int, dict[str, np.ndarray]],
-                roles: dict[int, str], chosen: Callable[[dict[int, tuple[Scene, scorecard.Truth]]], list[int]],
+Flown = Callable[[int], tuple[dict[int, dict[str, np.ndarray]], dict[int, str]]]  # scenario id -> routes, roles
+
+
+def _recordings(params: Params, material: str, folder: Path, flown: Flown,
+                chosen: Callable[[dict[int, tuple[Scene, scorecard.Truth]]], list[int]],
                 window_s: float) -> list[Recording]:
     """The recordings of the simulated files in `folder` (simulate's plots, truth and radar), each scenario from
-    its first plot for `window_s` (0: whole); `flown` holds each target's route by target id, `roles` its role;
+    its first plot for `window_s` (0: whole); `flown` gives a scenario's targets' routes and roles by target id;
     `chosen` picks the scenario ids kept from every candidate's scene and truth."""
     table = io.read_parquet(folder / "plots.parquet", simulate.PLOT_SCHEMA)
     plots = plot_table.read_parquet_plots(folder / "plots.parquet", folder / "radar.parquet", params.radar)
@@ -149,9 +158,10 @@ def _recordings(params: Params, material: str, folder: Path, flown: dict[int, di
         scans = np.array([scan_of_plot[p] for p in part.plot_id.tolist()], dtype=np.int64)
         targets = np.unique(column["target_id"][mine]).tolist()
         surveillance = evaluation.surveillance_truth(truth, mine)
+        routes_of, roles = flown(scenario_id)
         scene = Scene(scenario_id, part, scans, np.unique(np.concatenate([scans, column["scan"][covered]])),
                       column["scan"][covered][order], column["target_id"][covered][order],
-                      {t: scene_evaluation.clipped(flown[t]) for t in targets}, {t: roles[t] for t in targets},
+                      {t: scene_evaluation.clipped(routes_of[t]) for t in targets}, {t: roles[t] for t in targets},
                       surveillance=surveillance)
         candidates[scenario_id] = scene, surveillance
         detection[scenario_id] = column["detection_probability"][mine]
@@ -172,7 +182,29 @@ def test_recordings(params: Params, simulated_dir: Path, routes_dir: Path) -> li
         return sorted(s for kind in STRATEGIES
                       for s in [s for s in seen if strategy[s] == kind][:params.peers.scenarios_per_strategy])
 
-    return _recordings(params, TEST, simulated_dir / split, flown, strategy, chosen, params.peers.window_s)
+    return _recordings(params, TEST, simulated_dir / split, lambda scenario_id: (flown, strategy), chosen,
+                       params.peers.window_s)
+
+
+def scene_recordings(params: Params, scenes_dir: Path) -> list[Recording]:
+    """The `scenes` material (module docstring): the first `peers.scenes` scenes of `scenes_dir` (the scenes stage's
+    plots, truth, radar and routes) whose aircraft are seen, each from its first plot for `peers.scene_window_s`;
+    none when `peers.scenes` is 0."""
+    if not params.peers.scenes:
+        return []
+    route_table = io.read_parquet(scenes_dir / "routes.parquet", scenes.SCENE_ROUTE_SCHEMA)
+    scene_of = route_table.column("scene_id").to_numpy()
+
+    def flown(scene_id: int) -> tuple[dict[int, dict[str, np.ndarray]], dict[int, str]]:
+        """A scene's aircraft (route ids repeat from scene to scene) and their roles."""
+        own = route_table.filter(pa.array(scene_of == scene_id))
+        return ({int(route["route_id"][0]): route for route in simulate.routes_by_id(own)},
+                dict(zip(own.column("route_id").to_pylist(), own.column("strategy").to_pylist())))
+
+    def chosen(candidates: dict[int, tuple[Scene, scorecard.Truth]]) -> list[int]:
+        return [s for s in sorted(candidates) if candidates[s][1].in_coverage.any()][:params.peers.scenes]
+
+    return _recordings(params, SCENES, scenes_dir, flown, chosen, params.peers.scene_window_s)
 
 
 def real_traffic_recordings(params: Params, root: Path) -> list[Recording]:
@@ -188,7 +220,8 @@ def real_traffic_recordings(params: Params, root: Path) -> list[Recording]:
     by_target = {int(route["route_id"][0]): route for route in flown}
     with io.temporary_folder(REAL_TRAFFIC_FOLDER) as folder:
         simulate.write_split(plots, truth, simulate.radar_description(moved), folder)
-        return _recordings(moved, REAL_TRAFFIC, folder, by_target, dict.fromkeys(by_target, REAL_TRAFFIC),
+        return _recordings(moved, REAL_TRAFFIC, folder, lambda scenario_id: (by_target,
+                                                                           dict.fromkeys(by_target, REAL_TRAFFIC)),
                            lambda candidates: [s for s in sorted(candidates) if candidates[s][1].in_coverage.any()],
                            params.peers.window_s)
 
@@ -233,13 +266,16 @@ def _tracker(params: Params, models, peer: PeerRun, cv: classical_filters.Filter
     return our_run
 
 
-def prepare(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, root: Path) -> PeerBench:
-    """The recordings of both materials and every run (`peer_runs`), with what the runs need loaded."""
+def prepare(params: Params, simulated_dir: Path, routes_dir: Path, scenes_dir: Path, models_dir: Path, root: Path
+            ) -> PeerBench:
+    """The recordings of every material and every run (`peer_runs`), with what the runs need loaded."""
     peers = peer_runs(params)
-    models = load_models(models_dir, params, [peer.run.method for peer in peers if peer.run is not None])
+    models = load_models(models_dir, params, [peer.run.method for peer in peers if peer.run is not None],
+                         [None, *(peer.run.management for peer in peers if peer.run is not None)])
     cv = classical_filters.load_settings(models_dir / "kalman_tuned.json")["cv"]
-    recordings = test_recordings(params, simulated_dir, routes_dir) + real_traffic_recordings(params, root)
-    return PeerBench(params, (params, simulated_dir, routes_dir, models_dir, root), recordings,
+    recordings = (test_recordings(params, simulated_dir, routes_dir) + scene_recordings(params, scenes_dir)
+                  + real_traffic_recordings(params, root))
+    return PeerBench(params, (params, simulated_dir, routes_dir, scenes_dir, models_dir, root), recordings,
                      {peer.name: _tracker(params, models, peer, cv) for peer in peers}, peers,
                      classical_filters.load_settings(models_dir / "kalman_tuned.json"))
 

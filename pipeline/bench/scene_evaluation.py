@@ -161,7 +161,7 @@ def prepare(params: Params, scenes_dir: Path, models_dir: Path) -> SceneEvaluati
     and every run scored on them, with what the runs need loaded."""
     chosen = scene_params(params)
     models = load_models(models_dir, chosen, [run.method for run in chosen.evaluate.runs]
-                         + list(chosen.evaluate.references))
+                         + list(chosen.evaluate.references), [None, *(run.management for run in chosen.evaluate.runs)])
     runs = evaluation.tracker_runs(chosen, models, records_velocity=True)  # the scorecard's velocity errors
     tracked = read_scenes(chosen, scenes_dir)
     for draw in range(1, chosen.evaluate.seeds):

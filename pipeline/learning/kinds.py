@@ -10,7 +10,8 @@ recipes are imported when a piece is loaded or trained, so naming the pieces loa
 Adding a trained estimator is its model module (the network and its `Recipe`), one entry here, its
 params section and its `dvc.yaml` stage, beside its estimator module and registry entry in
 `pipeline/tracker` (README "Adding a trained estimator: a worked example"). The association network,
-scored by the bench's association methods, has its entry in `pipeline/bench/association_training.py`.
+scored by the bench's association methods, has its entry in `pipeline/bench/association_training.py`, and the
+learned track confirmation's, trained on the tracker's candidate tracks, in `pipeline/bench/confirmation_training.py`.
 """
 
 from __future__ import annotations
@@ -100,6 +101,11 @@ def _load_tuned_filters(path: Path, params: Params) -> Any:
         raise io.InputError(f"{error}; make it again with `dvc repro tune_kalman`") from None
 
 
+def _load_confirmation(path: Path, params: Params) -> Any:
+    from pipeline.learning import confirmation
+    return confirmation.load(path)
+
+
 TUNED_FILTERS = "kalman_tuned"
 
 KINDS: dict[str, Kind] = {kind.name: kind for kind in [
@@ -110,9 +116,12 @@ KINDS: dict[str, Kind] = {kind.name: kind for kind in [
     Kind(name="kalman_net", file="kalman_net.pt", stage="train_kalman_net", command="train-kalman-net",
          load=_load_kalman_net, recipe=_kalman_net_recipe),
 ]}
+# the learned confirmation's network: trained on the tracker's candidate tracks, so its `Kind` is the bench's
+# (`pipeline.bench.confirmation_training`), and the tracker loads it as a piece of its track management
+CONFIRMATION = Piece(name="confirmation", file="confirmation.pt", stage="train_confirmation", load=_load_confirmation)
 # every piece, in the order the tracker loads them
 PIECES: dict[str, Piece] = {piece.name: piece for piece in [
     *(KINDS[name] for name in ("predictor", "filter", "autoencoder")),
     Piece(name=TUNED_FILTERS, file="kalman_tuned.json", stage="tune_kalman", load=_load_tuned_filters, network=False),
-    *(KINDS[name] for name in ("lstm_update", "kalman_net")),
+    *(KINDS[name] for name in ("lstm_update", "kalman_net")), CONFIRMATION,
 ]}

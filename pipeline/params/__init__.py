@@ -10,7 +10,7 @@ the pipeline (`pipeline.settings` adds the registries' name checks).
 """
 
 from pipeline.params.declare import ParamError, ParamsLoader, load_params_tree
-from pipeline.params.learning import (TUNING_COSTS, Association, Kalman, KalmanNet, LSTMUpdate, NetworkTraining,
+from pipeline.params.learning import (TUNING_COSTS, Association, Confirmation, Kalman, KalmanNet, LSTMUpdate, NetworkTraining,
                                       Training)
 from pipeline.params.tracking import (MIA, Associate, Candidates, Evaluate, EvaluationRun, Fusion, FusionRadar,
                                       LSTMUpdateGate, Management, Networks, Params, Peers, RealTraffic, Scorecard, Site,
@@ -19,7 +19,7 @@ from pipeline.params.world import (STRATEGIES, Aircraft, ClimbDive, ConstantJerk
                                    Split, SustainedTurns, Windows, formation_resolution_m)
 
 __all__ = ["MIA", "STRATEGIES", "TUNING_COSTS", "Aircraft", "Associate", "Association", "Candidates", "ClimbDive",
-           "ConstantJerk", "Evaluate", "EvaluationRun", "Fusion", "FusionRadar", "Kalman", "KalmanNet", "LSTMUpdate",
+           "Confirmation", "ConstantJerk", "Evaluate", "EvaluationRun", "Fusion", "FusionRadar", "Kalman", "KalmanNet", "LSTMUpdate",
            "LSTMUpdateGate", "Management", "NetworkTraining", "Networks", "ParamError", "Params", "ParamsLoader",
            "Peers", "Radar", "RandomTurns", "RealTraffic", "Routes", "Scenes", "Scorecard",
            "Site", "Split", "StoneSoupPeer", "SustainedTurns", "TrackerParams", "Training", "Windows", "formation_resolution_m",

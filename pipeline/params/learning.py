@@ -194,6 +194,24 @@ class KalmanNet(Section):
 
 
 @dataclass(frozen=True)
+class Confirmation(Section):
+    """`confirmation` (ours, issue 34): the learned track confirmation's network, which scores each association of
+    a candidate track from its evidence (pipeline/learning/confirmation.py), trained on the candidate tracks that
+    `method` makes on `split`'s plots (aircraft and clutter); the train_confirmation stage, one MLflow run."""
+
+    split: str = split_knob()
+    method: str = knob("the tracking method whose candidate tracks it learns from (a method with no network)")
+    window_m: float = positive("... at this window (m)")
+    validation_every: int = knob("every this many-th scenario is held out: the threshold's clutter tracks and the "
+                                 "hold-out metrics", 2)
+    hidden: int = knob("units of each of its two hidden layers", 1)
+    epochs: int = knob("passes over the associations", 1)
+    batch_size: int = knob("associations per Adam step", 1)
+    learning_rate: float = positive("Adam")
+    seed: int = knob("initial weights and batch order", 0)
+
+
+@dataclass(frozen=True)
 class Association(Section):
     """`association` (ours, issue 19): two radars' track-to-track association on the seed's synthetic setting
     (seed 002, section 4.1; pipeline/association/association_scenes.py), the train_association stage."""

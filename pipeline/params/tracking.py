@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 from pipeline.params.declare import ParamError, Section, Tracked, build, get, given, knob, parse_section, positive
-from pipeline.params.learning import Association, KalmanNet, Kalman, LSTMUpdate, Training
+from pipeline.params.learning import Association, Confirmation, KalmanNet, Kalman, LSTMUpdate, Training
 from pipeline.params.world import Aircraft, Radar, Routes, Scenes, Windows, split_knob
 
 MAX_CONFIRM_N = 52  # an M-of-N track's last confirm_n opportunities are the bits of its weight (a double's 53)
@@ -47,6 +47,11 @@ class Management(Section):
                                                open_low=True, open_high=True)
     sprt_lost_track_probability: float = knob("sprt: beta, its risk of deleting an aircraft's track (alpha + beta "
                                               "< 1)", 0.0, 1.0, open_low=True, open_high=True)
+    learned_false_track_probability: float = knob("learned (pipeline/tracker/learned_confirmation.py, over confirm_n "
+                                                   "opportunities, deleting as m_of_n): the share of clutter's "
+                                                   "candidate tracks (of two plots or more) it confirms, which sets "
+                                                   "its threshold", 0.0, 1.0,
+                                                   open_low=True, open_high=True)
 
     def check(self, path: str, context: Mapping[str, Any]) -> Management:
         if self.sprt_false_plot_probability >= self.sprt_detection_probability:
@@ -390,6 +395,9 @@ class Peers(Section):
     scenarios_per_strategy: int = knob("the first this many scenarios of each route strategy of evaluate.split", 1)
     window_s: float = knob("each of them, and the real-traffic scene, from its first plot for this long (s; 0: "
                            "whole): Stone Soup tracks about 100 plots a second", 0.0)
+    scenes: int = knob("the first this many many-aircraft scenes of the scenes stage (0: none) ...", 0)
+    scene_window_s: float = knob("... each from its first plot for this long (s; 0: whole): a scene holds 30 "
+                                 "aircraft, and Stone Soup tracks it at about 10 plots a second", 0.0)
     runs: tuple[str, ...] = knob("our runs (names of evaluate.runs) set beside Stone Soup's ([]: those of "
                                  "evaluate.scene_runs)", why="must be a list of run names")
     stone_soup: StoneSoupPeer = knob("Stone Soup's trackers")
@@ -418,6 +426,7 @@ class Params(Section):
     kalman_net: KalmanNet = knob("the network-scaled Kalman filter")
     association: Association = knob("track-to-track association on the seed's setting")
     lstm_update: LSTMUpdate = knob("the LSTM update")
+    confirmation: Confirmation = knob("the learned track confirmation's network")
     evaluate: Evaluate = knob("the evaluation")
     workers: int = knob("processes for independent work (1: all in the stage's process); no result depends on it",
                         1, key="compute.workers")

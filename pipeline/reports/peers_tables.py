@@ -151,14 +151,15 @@ def best(runs: Mapping[str, dict], families: Mapping[str, str], stone_soup: bool
     return min(chosen, key=lambda name: runs[name]["GOSPA"]) if chosen else None
 
 
-def verdicts(report: dict, intervals: dict) -> list[str]:
-    """The best of ours against the best of Stone Soup on the test material, each metric of VERDICTS with the
-    paired 95 % interval of the difference (ours minus Stone Soup's): a win only when the interval excludes 0."""
-    runs, families = report["runs"].get("test", {}), report["families"]
+def verdicts(report: dict, intervals: dict, material: str = "test") -> list[str]:
+    """The best of ours against the best of Stone Soup on `material` (one with intervals: the test scenarios or
+    the scenes), each metric of VERDICTS with the paired 95 % interval of the difference (ours minus Stone
+    Soup's): a win only when the interval excludes 0."""
+    runs, families = report["runs"].get(material, {}), report["families"]
     ours, theirs = best(runs, families, False), best(runs, families, True)
     if ours is None or theirs is None:
         return []
-    paired = intervals.get("test", {}).get("paired", {})
+    paired = intervals.get(material, {}).get("paired", {})
     lines = []
     for metric, label, lower_better in VERDICTS:
         mine, their = as_floats([runs[ours].get(metric), runs[theirs].get(metric)])  # JSON's null: NaN
@@ -196,6 +197,13 @@ def materials_intro(report: dict) -> str:
                      f"{each} of each of {len(kinds)} route strategies), each its first {test['window_s'] / 60:.0f} minutes "
                      f"({test['plots']['target']:,} target and {test['plots']['false']:,} false plots), one aircraft "
                      "each; intervals resample the scenarios.")
+    scenes = report["materials"].get("scenes")
+    if scenes:
+        parts.append(f"**Many-aircraft scenes**: the first {len(scenes['recordings'])} scenes of the scenes stage "
+                     f"({', '.join(str(n) for n in scenes['aircraft'].values())} aircraft each, crossings and a "
+                     f"formation among them), each its first {scenes['window_s'] / 60:.0f} minutes "
+                     f"({scenes['plots']['target']:,} target and {scenes['plots']['false']:,} false plots, "
+                     f"{scenes['targets']} aircraft seen); intervals resample the scenes.")
     real = report["materials"].get("real_traffic")
     if real:
         parts.append(f"**Real traffic**: {real['targets']} aircraft tracks of OpenSky's recording ({real['states']}) "
@@ -217,11 +225,13 @@ INTRO = ("Every run tracks the same plots (`dvc repro peers`, `pipeline/bench/pe
 def section(report: dict, intervals: dict, heading: str = "###") -> list[str]:
     """The report's blocks: intro, verdicts, then per material its table and the reference figures."""
     blocks = [INTRO, materials_intro(report)]
-    lines = verdicts(report, intervals)
-    if lines:
-        blocks += [f"{heading} Who wins: the best of ours against the best of Stone Soup (test scenarios)",
-                   "\n".join(lines)]
-    for material, title in (("test", "Test scenarios"), ("real_traffic", "Real traffic")):
+    for material, title in (("test", "test scenarios"), ("scenes", "many-aircraft scenes")):
+        lines = verdicts(report, intervals, material)
+        if lines:
+            blocks += [f"{heading} Who wins: the best of ours against the best of Stone Soup ({title})",
+                       "\n".join(lines)]
+    for material, title in (("test", "Test scenarios"), ("scenes", "Many-aircraft scenes"),
+                            ("real_traffic", "Real traffic")):
         if material in report["runs"]:
             runs_intervals = intervals.get(material, {}).get("runs")
             missed = cause_table(report["runs"][material], runs_intervals, MISSED_COLUMNS)

@@ -1,8 +1,8 @@
 """Stage `peers`: Stone Soup's trackers, our runs of `peers.runs` and the oracle on the same plots, a few test
-scenarios and a real-traffic scene (`pipeline.bench.peers`), scored by GOSPA and the surveillance scorecard.
+scenarios, a few many-aircraft scenes and a real-traffic scene (`pipeline.bench.peers`), scored by GOSPA and the surveillance scorecard.
 
 Writes `reports/peers.json` (per material: what was tracked, and per run its metrics and the scorecard's
-reference figures with pass or fail), `reports/peers_intervals.json` (the test material's 95 % intervals and
+reference figures with pass or fail), `reports/peers_intervals.json` (the test and scene materials' 95 % intervals and
 paired intervals, `pipeline.bench.intervals`) and `reports/peers.md` (the tables, `pipeline.reports.peers_tables`).
 """
 
@@ -33,13 +33,17 @@ def material_summary(params: Params, material: str, recordings: list[peers.Recor
     if material == peers.TEST:
         return {**summary, "split": params.evaluate.split, "window_s": params.peers.window_s,
                 "strategies": {str(r.scene.scenario_id): next(iter(r.scene.roles.values())) for r in recordings}}
+    if material == peers.SCENES:
+        return {**summary, "window_s": params.peers.scene_window_s,
+                "aircraft": {str(r.scene.scenario_id): len(r.scene.roles) for r in recordings}}
     site = params.peers.real_traffic
     return {**summary, "states": site.states, "site": {"latitude_deg": site.latitude_deg,
                                                        "longitude_deg": site.longitude_deg, "height_m": site.height_m}}
 
 
-def run_peers(params: Params, simulated_dir: Path, routes_dir: Path, models_dir: Path, reports_dir: Path) -> None:
-    bench = peers.prepare(params, simulated_dir, routes_dir, models_dir, ROOT)
+def run_peers(params: Params, simulated_dir: Path, routes_dir: Path, scenes_dir: Path, models_dir: Path,
+              reports_dir: Path) -> None:
+    bench = peers.prepare(params, simulated_dir, routes_dir, scenes_dir, models_dir, ROOT)
     results = peers.evaluate_all(bench, params.workers)
     report = {"materials": {}, "runs": {}, "references": {}, "families": {p.name: p.family for p in bench.peers}}
     interval_report = {}
@@ -57,7 +61,7 @@ def run_peers(params: Params, simulated_dir: Path, routes_dir: Path, models_dir:
             log.info("peers %s %s: GOSPA %.1f m, position RMS %.1f m, probability of update %.4f, long gaps %.4f, "
                      "%.0f plots/s", material, name, values["GOSPA"], values["position_rms_m"],
                      values["probability_of_update"], values["ratio_of_long_gaps"], values["plots_per_second"])
-        if material == peers.TEST:
+        if material in peers.RESAMPLED:
             interval_report[material] = peers.metric_intervals(params, recordings, units)
     io.write_metrics(report, reports_dir / "peers.json")
     io.write_metrics(interval_report, reports_dir / "peers_intervals.json")

@@ -7,11 +7,12 @@ from pathlib import Path
 
 from pipeline import io
 from pipeline.bench.association_training import ASSOCIATION_NET
+from pipeline.bench.confirmation_training import CONFIRMATION_NET
 from pipeline.learning.kinds import KINDS, Kind
 from pipeline.learning.recipe import Folders
 from pipeline.params import Params
 
-TRAINED: dict[str, Kind] = {**KINDS, ASSOCIATION_NET.name: ASSOCIATION_NET}  # every trained piece, by name
+TRAINED: dict[str, Kind] = {**KINDS, **{kind.name: kind for kind in (ASSOCIATION_NET, CONFIRMATION_NET)}}  # by name
 
 
 def run_train(params: Params, kind: str, folders: Folders) -> None:

@@ -13,6 +13,7 @@ Errors (io.InputError, exit 2 from the command line) name the missing or bad fil
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 from pipeline import io
@@ -38,18 +39,25 @@ def model_paths(models_dir: Path, methods: list[str]) -> dict[str, Path]:
     return {piece: _path(models_dir, piece, methods) for piece in sorted(registry.needs(methods))}
 
 
-def load_models(models_dir: Path, params: Params, methods: list[str]) -> Models:
-    """What `methods` (registered names) need from `models_dir`, checked against params, loaded in the
-    order of `PIECES`.
+def load_models(models_dir: Path, params: Params, methods: list[str], rules: Iterable[str | None] = (None,)
+                ) -> Models:
+    """What `methods` (registered names) and the track management `rules` (None: the tracker's own) need from
+    `models_dir`, checked against params, loaded in the order of `PIECES`.
 
     Raises registry.UnknownMethod for a name not registered, io.InputError for a missing or bad file,
     ParamError for a `tracker.device` this machine lacks when a method runs kalman_net or lstm_update."""
-    needed = registry.needs(methods)
+    needed = registry.needs(methods) | registry.rule_needs(
+        params.tracker.management.rule if rule is None else rule for rule in rules)
     if needed & {registry.KALMAN_NET, registry.LSTM_UPDATE}:
         from pipeline.learning import devices
 
         devices.resolve(params.tracker.device)  # ParamError before any file is read when the device is not here
     paths = model_paths(models_dir, methods)
+    for piece in needed - set(paths):  # a management rule's
+        paths[piece] = models_dir / PIECES[piece].file
+        if not paths[piece].is_file():
+            raise io.InputError(f"{paths[piece]}: file not found; track management {registry.LEARNED_RULE!r} needs it "
+                                f"(make it with `dvc repro {PIECES[piece].stage}`)")
     if any(PIECES[piece].network for piece in needed):
         import torch
 

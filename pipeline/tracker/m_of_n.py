@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.params import Management
+from pipeline.tracker.management import Evidence
 
 CONFIRMED = 1.0
 
@@ -62,7 +63,7 @@ class MOfN:
     def _hits(self, weight: float) -> int:
         return round(float(weight) * 2 ** self.n)
 
-    def associated(self, weight: float) -> float:
+    def associated(self, weight: float, evidence: Evidence | None = None) -> float:
         if weight >= CONFIRMED:
             return CONFIRMED
         hits = (self._hits(weight) >> 1) | 1 << (self.n - 1)

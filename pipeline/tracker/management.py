@@ -16,16 +16,22 @@ revisit intervals of several sensors are a known need of deleters (Stone Soup is
 time-step deleters); a radar display counts target persistence in antenna turns (BR24radar_pi
 issue 36).
 
+An association comes with its `Evidence` (the gate's normalised error, the time since the track's
+previous plot in scans, the plots the track had, the speed the two plots imply), which a learned rule
+scores and the others ignore.
+
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
 alternative (M-of-N confirmation, time-out deletion), `pipeline.tracker.sprt.SequentialRatioTest` the
-classical track-existence test (the SPRT on hits and misses). `pipeline.tracker.registry` names them
-(`tracker.management.rule`, or a run's `management`).
+classical track-existence test (the SPRT on hits and misses), and
+`pipeline.tracker.learned_confirmation.LearnedConfirmation` M-of-N with each hit weighed by a network's
+score of its evidence (issue 34). `pipeline.tracker.registry` names them (`tracker.management.rule`, or a
+run's `management`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -34,9 +40,21 @@ from pipeline.params import Management
 EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this tolerance
 
 
+class Evidence(NamedTuple):
+    """What one association tells of its track: `error`, the gate's normalised error of the pair (in
+    [0, 1): `pipeline.tracker.gate`); `gap_scans`, the time since the track's previous plot in scans of
+    the new plot's radar; `plots`, the plots the track had before this one; `speed_mps`, the distance
+    between the two plots over that time (m/s)."""
+
+    error: float
+    gap_scans: float
+    plots: int
+    speed_mps: float
+
+
 class TrackManagement(Protocol):
-    """Weights of a track over its life: `start` for a new one, `associated(w)` after an
-    association, `lowered(w)` after a silence of `silence(w, scan_period_s)` seconds at weight w
+    """Weights of a track over its life: `start` for a new one, `associated(w, evidence)` after an
+    association (its `Evidence`), `lowered(w)` after a silence of `silence(w, scan_period_s)` seconds at weight w
     whose latest plot came from a radar of scan period `scan_period_s` (s) (None: delete the
     track); `confirmed(w)` says which weights (an array) mean a confirmed track; `status(w)` names
     one."""
@@ -45,7 +63,7 @@ class TrackManagement(Protocol):
 
     def silence(self, weight: float, scan_period_s: float) -> float: ...
 
-    def associated(self, weight: float) -> float: ...
+    def associated(self, weight: float, evidence: Evidence | None = None) -> float: ...
 
     def lowered(self, weight: float) -> float | None: ...
 
@@ -80,7 +98,7 @@ class ThesisWeights:
         return cls(params.weight_start, params.weight_candidate, params.weight_confirmed, params.weight_step,
                    params.silence_s, params.silence_scans)
 
-    def associated(self, weight: float) -> float:
+    def associated(self, weight: float, evidence: Evidence | None = None) -> float:
         return min(weight + self.step, self.confirmed_weight)
 
     def silence(self, weight: float, scan_period_s: float) -> float:

@@ -23,12 +23,15 @@ loads no network library.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 from pipeline.params import ParamError
 
 if TYPE_CHECKING:
+    from collections.abc import Iterable
+
     from pipeline.params import Params, TrackerParams
     from pipeline.tracker.assigner import Assigner
     from pipeline.tracker.estimator import Estimator
@@ -48,8 +51,10 @@ JPDA_SUFFIX = "_jpda"   # ... with scan-wise joint probabilistic data associatio
 NOT_MATURE = 1 << 62    # `mature_from` of a method whose tracks all stay young
 
 Seed = int | list[int]
-THESIS_RULE, M_OF_N_RULE, SPRT_RULE = "thesis", "m_of_n", "sprt"
-MANAGEMENT = (THESIS_RULE, M_OF_N_RULE, SPRT_RULE)  # track management rules (`tracker.management.rule`, a run's `management`)
+THESIS_RULE, M_OF_N_RULE, SPRT_RULE, LEARNED_RULE = "thesis", "m_of_n", "sprt", "learned"
+MANAGEMENT = (THESIS_RULE, M_OF_N_RULE, SPRT_RULE, LEARNED_RULE)  # track management rules (`tracker.management.rule`,
+                                                                  # a run's `management`)
+CONFIRMATION = "confirmation"  # the learned rule's network (models/confirmation.pt, the train_confirmation stage)
 
 
 class UnknownMethod(ValueError):
@@ -88,7 +93,7 @@ def _composition(label: str, estimator: "Estimator", gate: "Gate", mature_from: 
     gating = params.association
     return Composition(label, estimator, gate, young_gate or RadiusGate(window_m), "radius", mature_from,
                        gating.prefilter_m if prefilter_m is None else prefilter_m, assigner or NearestPerPlot(),
-                       management(params.management.rule, params), gating.mature_first,
+                       management(THESIS_RULE, params), gating.mature_first,
                        refusals=RefusalWatch(window_m, *learned) if any(learned) else None,
                        revisit_scans=gating.revisit_scans)
 
@@ -262,6 +267,16 @@ def check_params(params: "Params") -> None:
         if run.management is not None and run.management not in MANAGEMENT:
             raise ParamError(f"evaluate.runs[{index}].management = {run.management!r}: must be one of {MANAGEMENT}")
         _check_tuned(f"evaluate.runs[{index}].method", run.method, params)
+    rules = {params.tracker.management.rule, *(run.management for run in params.evaluate.runs)}
+    from pipeline.tracker.learned_confirmation import MAX_N
+    if LEARNED_RULE in rules and params.tracker.management.confirm_n > MAX_N:
+        raise ParamError(f"tracker.management.confirm_n = {params.tracker.management.confirm_n}: the learned rule "
+                         f"keeps at most {MAX_N} opportunities")
+    confirming = params.confirmation.method
+    if confirming not in TRACKERS or not set(METHODS[confirming].needs) <= {TUNED_FILTERS}:
+        raise ParamError(f"confirmation.method = {confirming!r}: must be a method that needs no network, one of "
+                         f"{[name for name in TRACKERS if set(METHODS[name].needs) <= {TUNED_FILTERS}]}")
+    _check_tuned("confirmation.method", confirming, params)
     references = list(params.evaluate.references)
     if any(name not in EVALUATION_REFERENCES for name in references):
         raise ParamError(f"evaluate.references = {references!r}: must list some of {EVALUATION_REFERENCES}")
@@ -288,29 +303,62 @@ def method(name: str) -> Method:
     return found
 
 
-def management(rule: str, params: "TrackerParams") -> "TrackManagement":
+def management(rule: str, params: "TrackerParams", models: "Models | None" = None) -> "TrackManagement":
     """The track management rule named `rule` (one of `MANAGEMENT`) with the tracker params'
     settings: `thesis`, the thesis's weights; `m_of_n`, M-of-N confirmation and a time-out; `sprt`, the
-    sequential probability ratio test on hits and misses."""
+    sequential probability ratio test on hits and misses; `learned`, M-of-N with each hit weighed by the
+    confirmation network of `models` (`rule_needs`), its threshold set by
+    `management.learned_false_track_probability` (with no `models`: a rule that reads weights, and refuses to
+    track). ValueError for another name, or `learned` with `models` that lack the network or hold one whose
+    hold-out sums were taken over another window than `management.confirm_n`."""
     from pipeline.tracker.m_of_n import MOfN
     from pipeline.tracker.management import ThesisWeights
     from pipeline.tracker.sprt import SequentialRatioTest
     rules = {THESIS_RULE: ThesisWeights.from_params, M_OF_N_RULE: MOfN.from_params,
              SPRT_RULE: SequentialRatioTest.from_params}
+    if rule == LEARNED_RULE:
+        return _learned(params, models)
     if rule not in rules:
-        raise ValueError(f"track management {rule!r}: must be one of {list(rules)}")
+        raise ValueError(f"track management {rule!r}: must be one of {list(MANAGEMENT)}")
     return rules[rule](params.management)
+
+
+def _learned(params: "TrackerParams", models: "Models | None") -> "TrackManagement":
+    """The learned rule with `models`' confirmation network; with no `models`, one that reads weights (whether an
+    update's track was confirmed: what scoring asks) and refuses to track."""
+    from pipeline.tracker.learned_confirmation import LearnedConfirmation, threshold_for
+    m = params.management
+    if models is None:
+        return LearnedConfirmation(m.confirm_n, math.inf, m.delete_after_s, m.delete_after_scans, _no_network)
+    if CONFIRMATION not in models.pieces:
+        _no_network()
+    trained = models[CONFIRMATION]
+    if trained.window != m.confirm_n:
+        raise ValueError(f"the confirmation network's threshold sums were taken over {trained.window} opportunities, "
+                         f"tracker.management.confirm_n is {m.confirm_n}: run `dvc repro train_confirmation` again")
+    return LearnedConfirmation(m.confirm_n, threshold_for(trained.clutter_maxima, m.learned_false_track_probability),
+                               m.delete_after_s, m.delete_after_scans, trained.scorer)
+
+
+def _no_network(*_: object) -> float:
+    raise ValueError(f"track management {LEARNED_RULE!r} needs the confirmation network (models/confirmation.pt, "
+                     "`dvc repro train_confirmation`)")
+
+
+def rule_needs(rules: "Iterable[str | None]") -> set[str]:
+    """The pieces the management rules `rules` need (None: the tracker's own, which the caller resolves)."""
+    return {CONFIRMATION} if LEARNED_RULE in set(rules) else set()
 
 
 def compose(name: str, models: "Models", params: "TrackerParams", window_m: float, seed: Seed,
             management_rule: str | None = None) -> "Composition":
     """The tracker of method `name` for one run (its estimator keeps per-track state: one per run),
-    under the track management rule `management_rule` (None: `params.management.rule`)."""
+    under the track management rule `management_rule` (None: `params.management.rule`), which reads `models` where
+    it needs a network (`rule_needs`)."""
     from dataclasses import replace
     composition = method(name).compose(models, params, window_m, seed)
-    if management_rule is None:
-        return composition
-    return replace(composition, management=management(management_rule, params))
+    rule = params.management.rule if management_rule is None else management_rule
+    return replace(composition, management=management(rule, params, models))
 
 
 def needs(names: list[str]) -> set[str]:

@@ -240,7 +240,7 @@ def _take(live: LiveTracks, row: int, c: Candidates, choice: tuple[int, int, int
     else:
         prediction, index = (c.prediction, _prediction_row(c, at)) if mature else (None, 0)
         position, covariance = estimator.update(live, slot, row, prediction, index)
-    live.associate(slot, row, position)
+    live.associate(slot, row, position, float(c.errors[at]))
     velocity = None
     if updates.with_velocity:
         values, spreads = estimator.velocities(live, np.array([slot]))

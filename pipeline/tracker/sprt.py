@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.params import Management
+from pipeline.tracker.management import Evidence
 
 QUANTUM = 2.0 ** -20  # nats: the score's grid; half of it marks a miss (exact in a double for |score| < 2**32)
 
@@ -95,7 +96,7 @@ class SequentialRatioTest:
     def start(self) -> float:
         return self._weight(self._full if self.hit >= self.upper else self.hit, False)
 
-    def associated(self, weight: float) -> float:
+    def associated(self, weight: float, evidence: Evidence | None = None) -> float:
         score, _ = self._state(weight)
         if score > self.upper:  # confirmed
             return self._weight(min(score + self.hit, self._full), False)

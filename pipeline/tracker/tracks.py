@@ -49,7 +49,7 @@ import numpy as np
 
 from pipeline.recordings import plot_table
 from pipeline.recordings.plot_table import Plots
-from pipeline.tracker.management import TrackManagement
+from pipeline.tracker.management import Evidence, TrackManagement
 
 TIME_QUANTUM_S = 1.0 / 128.0  # ASTERIX CAT048 I048/140 time-of-day resolution (EUROCONTROL CAT048 ed. 1.32)
 DEFAULT_CELL_M = 20000.0  # params' default tracker.association.prefilter_m; `track` passes the run's own
@@ -240,11 +240,13 @@ class LiveTracks:
         self._generation[slot] += 1
         heapq.heappush(self._due, (due, slot, self._generation[slot]))
 
-    def associate(self, slot: int, row: int, position: np.ndarray) -> None:
-        """Add plot `row` to a track, with the position (3,) estimated from it; raise its weight. The
+    def associate(self, slot: int, row: int, position: np.ndarray, error: float = 0.0) -> None:
+        """Add plot `row` to a track, with the position (3,) estimated from it and the gate's normalised
+        error of the pair; raise its weight (the management rule's, given the association's `Evidence`). The
         track's rows keep its first and its `latest_plots` latest: the one that falls out of the
         latest is dropped."""
         self.changed.add(slot)
+        evidence = self._evidence(slot, row, error)
         rows = self.tracks[slot].rows
         rows.append(row)
         if len(rows) > self.latest_plots + 1:
@@ -252,10 +254,17 @@ class LiveTracks:
         self.position[slot] = position
         self._place(slot)
         self.last_plot[slot] = self.plots.position[row]
-        self.weight[slot] = self.management.associated(self.weight[slot])
+        self.weight[slot] = self.management.associated(self.weight[slot], evidence)
         self.plot_count[slot] += 1
         self._seen(slot, row)
         self._schedule(slot, self.plots.time[row] + self._silence(slot))
+
+    def _evidence(self, slot: int, row: int, error: float) -> Evidence:
+        """Plot `row` joining `slot` as the management rule sees it (`Evidence`): before the track takes it."""
+        elapsed = float(self.plots.time[row] - self.last_seen[slot].max())  # its latest plot, of any radar
+        distance = float(np.linalg.norm(self.plots.position[row] - self.last_plot[slot]))
+        return Evidence(float(error), elapsed / self._periods[self._column[row]], int(self.plot_count[slot]),
+                        distance / elapsed if elapsed > 0.0 else 0.0)
 
     def holds(self, slot: int, track_id: int) -> bool:
         """Whether `slot` still holds track `track_id` (not deleted, not reused)."""
