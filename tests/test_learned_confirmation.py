@@ -20,9 +20,9 @@ from pipeline.tracker.m_of_n import MOfN
 from pipeline.tracker.management import Evidence
 from pipeline.tracker.models import Models
 from pipeline.tracker.run import track
-from tests.test_tracker_loop import composition, plots
+from tests.test_tracker_loop import ORIGIN, composition, plots
 
-EVIDENCE = Evidence(0.1, 1.0, 1, 200.0)
+EVIDENCE = Evidence(0.1, 1.0, 1, 200.0, 5.0)
 
 
 def constant(m: int, n: int, score: float = 1.0) -> LearnedConfirmation:
@@ -98,26 +98,33 @@ def test_the_threshold_confirms_at_most_the_asked_share_of_clutters_tracks():
 
 def test_the_numpy_scorer_is_the_network():
     torch.manual_seed(0)
-    network = HitScorer(ConfirmationConfig(8)).double()
+    network = HitScorer(ConfirmationConfig(8)).double()  # float64: the scorer's arithmetic
     inputs = features(np.array([0.0, 0.3, 0.99, np.inf]), np.array([1.0, 2.0, 0.0, 7.0]), np.array([1, 4, 20, 2]),
-                      np.array([250.0, 30.0, 5000.0, 0.0]))
+                      np.array([250.0, 30.0, np.inf, 0.0]), np.array([0.0, 12.0, np.inf, 40.0]))
     expected = torch.sigmoid(network(torch.from_numpy(inputs))).detach().numpy()
     scorer = Scorer(network)
     np.testing.assert_allclose(scorer.scores(inputs), expected, rtol=1e-12)
-    one = Evidence(0.3, 2.0, 4, 30.0)
+    one = Evidence(0.3, 2.0, 4, 30.0, 12.0)
     assert scorer(one) == pytest.approx(expected[1], rel=1e-12)
+    assert scorer(Evidence(0.99, 0.0, 20, math.inf, math.inf)) == pytest.approx(expected[2], rel=1e-12)
 
 
 def test_the_loop_hands_the_rule_each_associations_evidence():
-    """Plots 1.5 km apart a 6 s scan apart (250 m/s), then one 1.5 km on after a missed scan (125 m/s): the rule
-    sees the gate's error, the gap in scans, the plots the track had and the speed of the two plots."""
+    """Plots 1.5 km apart a 6 s scan apart (250 m/s), then one 1.5 km on after a missed scan (125 m/s), along ECEF
+    x, which climbs at the stub's place (x . up = 0.45): the rule sees the gate's error, the gap in scans, the
+    plots the track had, and the two plots' speed split into horizontal and vertical."""
     seen: list[Evidence] = []
     rule = LearnedConfirmation(5, math.inf, 20.0, 3.25, lambda e: seen.append(e) or 1.0)
     track(plots([0, 6, 18], [0, 1500, 3000]), dataclasses.replace(composition(), management=rule))
     assert [e.plots for e in seen] == [1, 2]
     assert [e.gap_scans for e in seen] == pytest.approx([6.0 / 6.0, 12.0 / 6.0], rel=1e-9)
-    assert [e.speed_mps for e in seen] == pytest.approx([250.0, 125.0], rel=1e-9)
+    assert [math.hypot(e.speed_mps, e.climb_mps) for e in seen] == pytest.approx([250.0, 125.0], rel=1e-9)
+    up = (ORIGIN + [750.0, 0.0, 0.0]) / np.linalg.norm(ORIGIN + [750.0, 0.0, 0.0])  # between the first two plots
+    assert seen[0].climb_mps == pytest.approx(250.0 * up[0], rel=1e-9)
     assert 0.0 <= seen[0].error < 1.0 and 0.0 <= seen[1].error < 1.0
+    seen.clear()  # a second plot at the first's time: no aircraft's next plot, infinitely fast
+    track(plots([0, 0], [0, 300]), dataclasses.replace(composition(), management=rule))
+    assert seen == [Evidence(seen[0].error, 0.0, 1, math.inf, math.inf)]
 
 
 def test_the_registry_needs_the_network_for_the_learned_rule(params_tree):

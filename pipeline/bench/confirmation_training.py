@@ -52,7 +52,7 @@ log = logging.getLogger("pipeline")
 
 @dataclasses.dataclass
 class Associations:
-    """Candidate tracks' associations (N,): `inputs` (N, 4) features, `labels` (N,) 0/1."""
+    """Candidate tracks' associations (N,): `inputs` (N, 5) features (`confirmation.features`), `labels` (N,) 0/1."""
 
     inputs: np.ndarray
     labels: np.ndarray
@@ -98,7 +98,7 @@ def candidate_associations(params: Params, models: object, scenarios: list[tuple
         evidence: list[Evidence] = []
         updates, _ = _tracked(params, models, plots, scenario_id, lambda e: evidence.append(e) or 1.0)
         labels.append(_labels(updates, plots))
-        inputs.append(features(*np.array(evidence, dtype=float).reshape(-1, 4).T))
+        inputs.append(features(*np.array(evidence, dtype=float).reshape(-1, 5).T))
         if len(labels[-1]) != len(inputs[-1]):
             raise AssertionError(f"scenario {scenario_id}: {len(inputs[-1])} evidences for {len(labels[-1])} "
                                  "associations")

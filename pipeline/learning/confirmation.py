@@ -6,9 +6,11 @@ The thesis's autoencoder was a first try at telling an aircraft's track from clu
 telling is done where track management decides, association by association, so that the learned rule
 (`pipeline.tracker.learned_confirmation.LearnedConfirmation`) weighs each hit of M-of-N by it.
 
-- **Features** (`features`, (N, 4)): the gate's normalised error (in [0, 1)); log(1 + the gap in scans); the
-  track's plots so far, at most `PLOTS_CAP`, over `PLOTS_CAP`; the speed of the two plots over `SPEED_SCALE_MPS`,
-  at most `SPEED_CAP` (clutter's pairs imply any speed, an aircraft's those of aircraft).
+- **Features** (`features`, (N, 5)): the gate's normalised error (in [0, 1)); log(1 + the gap in scans); the
+  track's plots so far, at most `PLOTS_CAP`, over `PLOTS_CAP`; the horizontal speed of the two plots over
+  `SPEED_SCALE_MPS`, at most `SPEED_CAP`; log(1 + their vertical speed, at most `CLIMB_CAP_MPS`, /
+  `CLIMB_SCALE_MPS`) (clutter's pairs imply any speed and climb, an aircraft's those of aircraft; two plots at one
+  time, infinite ones).
 - **Network** (`HitScorer`): two tanh layers of `hidden` units and a logit; trained by binary cross-entropy on
   the associations of candidate tracks (label: the plot is an aircraft's and the track's previous plot the same
   aircraft's; the material `pipeline.bench.confirmation_training`, the Lightning task
@@ -35,15 +37,20 @@ STAGE = "train_confirmation"
 PLOTS_CAP = 8               # the track's plots so far count up to this
 SPEED_SCALE_MPS = 300.0     # the speed feature's unit
 SPEED_CAP = 4.0             # ... at most this many of them (1,200 m/s: faster than any aircraft here)
-FEATURES = 4
+CLIMB_SCALE_MPS = 30.0      # the vertical speed's unit, under a log ...
+CLIMB_CAP_MPS = 3000.0      # ... at most this (two plots at one time: infinite speeds)
+FEATURES = 5
 
 
-def features(error: np.ndarray, gap_scans: np.ndarray, plots: np.ndarray, speed_mps: np.ndarray) -> np.ndarray:
-    """The network's inputs (N, 4) of N associations' evidence (each (N,); module docstring)."""
+def features(error: np.ndarray, gap_scans: np.ndarray, plots: np.ndarray, speed_mps: np.ndarray,
+             climb_mps: np.ndarray) -> np.ndarray:
+    """The network's inputs (N, 5) of N associations' evidence (each (N,); module docstring)."""
     return np.column_stack([np.clip(np.nan_to_num(np.asarray(error, dtype=float), posinf=1.0), 0.0, 1.0),
                             np.log1p(np.maximum(np.asarray(gap_scans, dtype=float), 0.0)),
                             np.minimum(np.asarray(plots, dtype=float), PLOTS_CAP) / PLOTS_CAP,
-                            np.minimum(np.asarray(speed_mps, dtype=float) / SPEED_SCALE_MPS, SPEED_CAP)])
+                            np.minimum(np.asarray(speed_mps, dtype=float) / SPEED_SCALE_MPS, SPEED_CAP),
+                            np.log1p(np.minimum(np.abs(np.asarray(climb_mps, dtype=float)), CLIMB_CAP_MPS)
+                                     / CLIMB_SCALE_MPS)])
 
 
 @dataclass(frozen=True)
@@ -52,7 +59,7 @@ class ConfirmationConfig:
 
 
 class HitScorer(nn.Module):
-    """Features (N, 4) -> logits (N,) of "an aircraft's next plot" (module docstring)."""
+    """Features (N, 5) -> logits (N,) of "an aircraft's next plot" (module docstring)."""
 
     def __init__(self, config: ConfirmationConfig) -> None:
         super().__init__()
@@ -84,11 +91,13 @@ class Scorer:
     def scores(self, inputs: np.ndarray) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-self.logits(inputs)))
 
-    def __call__(self, evidence: tuple[float, float, int, float]) -> float:
-        """One association's score from its evidence (error, gap in scans, plots so far, speed in m/s)."""
-        h = np.array([min(max(evidence.error, 0.0), 1.0) if math.isfinite(evidence.error) else 1.0,
-                      math.log1p(max(evidence.gap_scans, 0.0)), min(evidence.plots, PLOTS_CAP) / PLOTS_CAP,
-                      min(evidence.speed_mps / SPEED_SCALE_MPS, SPEED_CAP)])
+    def __call__(self, evidence: tuple[float, float, int, float, float]) -> float:
+        """One association's score from its evidence (error, gap in scans, plots so far, horizontal and vertical
+        speed in m/s): `scores` of its `features`, in scalar arithmetic (a few microseconds)."""
+        error, gap, plots, speed, climb = evidence
+        h = np.array([min(max(error, 0.0), 1.0) if math.isfinite(error) else 1.0, math.log1p(max(gap, 0.0)),
+                      min(plots, PLOTS_CAP) / PLOTS_CAP, min(speed / SPEED_SCALE_MPS, SPEED_CAP),
+                      math.log1p(min(abs(climb), CLIMB_CAP_MPS) / CLIMB_SCALE_MPS)])
         for k, (weight, bias) in enumerate(zip(self._weights, self._biases)):
             h = weight @ h + bias
             if k < len(self._weights) - 1:

@@ -17,8 +17,8 @@ time-step deleters); a radar display counts target persistence in antenna turns 
 issue 36).
 
 An association comes with its `Evidence` (the gate's normalised error, the time since the track's
-previous plot in scans, the plots the track had, the speed the two plots imply), which a learned rule
-scores and the others ignore.
+previous plot in scans, the plots the track had, the horizontal and vertical speeds the two plots imply), which
+a learned rule scores and the others ignore.
 
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
 alternative (M-of-N confirmation, time-out deletion), `pipeline.tracker.sprt.SequentialRatioTest` the
@@ -43,13 +43,16 @@ EPSILON = 1e-9  # weights are sums of steps such as 0.2: compare with this toler
 class Evidence(NamedTuple):
     """What one association tells of its track: `error`, the gate's normalised error of the pair (in
     [0, 1): `pipeline.tracker.gate`); `gap_scans`, the time since the track's previous plot in scans of
-    the new plot's radar; `plots`, the plots the track had before this one; `speed_mps`, the distance
-    between the two plots over that time (m/s)."""
+    the new plot's radar; `plots`, the plots the track had before this one; `speed_mps`, the horizontal
+    distance between the two plots over that time, and `climb_mps` the vertical one, unsigned (m/s: vertical
+    along the Earth's radius through their midpoint; a false plot's altitude is anywhere from the ground to
+    the ceiling, an aircraft's changes at a few tens of metres a second); both infinite for two plots at one time."""
 
     error: float
     gap_scans: float
     plots: int
     speed_mps: float
+    climb_mps: float
 
 
 class TrackManagement(Protocol):

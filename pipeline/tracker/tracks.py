@@ -262,9 +262,16 @@ class LiveTracks:
     def _evidence(self, slot: int, row: int, error: float) -> Evidence:
         """Plot `row` joining `slot` as the management rule sees it (`Evidence`): before the track takes it."""
         elapsed = float(self.plots.time[row] - self.last_seen[slot].max())  # its latest plot, of any radar
-        distance = float(np.linalg.norm(self.plots.position[row] - self.last_plot[slot]))
+        here, before = self.plots.position[row], self.last_plot[slot]
+        up = here + before
+        up = up / np.linalg.norm(up)
+        step = here - before
+        climb = abs(float(step @ up))
+        level = math.sqrt(max(float(step @ step) - climb * climb, 0.0))
+        if elapsed <= 0.0:  # two plots at one time (to the plot times' resolution): no aircraft's next plot
+            return Evidence(float(error), 0.0, int(self.plot_count[slot]), math.inf, math.inf)
         return Evidence(float(error), elapsed / self._periods[self._column[row]], int(self.plot_count[slot]),
-                        distance / elapsed if elapsed > 0.0 else 0.0)
+                        level / elapsed, climb / elapsed)
 
     def holds(self, slot: int, track_id: int) -> bool:
         """Whether `slot` still holds track `track_id` (not deleted, not reused)."""
