@@ -50,17 +50,7 @@ class ConfirmationTraining(L.LightningModule):
 
 def training_task(network: HitScorer, inputs: np.ndarray, labels: np.ndarray, knobs: Any, deterministic: bool
                   ) -> Task:
-    """`network` trained on associations' features (N, 4) float32 and 0/1 labels (N,) float32, by `knobs`: params'
-    `confirmation` section (epochs, batch_size, learning_rate, seed)."""
-    config = subset(FitConfig, knobs, label="the confirmation network", loss_name="confirmation.train_loss",
-                    deterministic=deterministic)
-    return Task(ConfirmationTraining(network, knobs.learning_rate),
-                CandidateBatches(inputs, labels, knobs.batch_size, knobs.seed), config)
-
-
-def training_task(network: HitScorer, inputs: np.ndarray, labels: np.ndarray, knobs: Any, deterministic: bool
-                  ) -> Task:
-    """`network` trained on associations' features (N, 4) float32 and 0/1 labels (N,) float32, by `knobs`: params'
+    """`network` trained on associations' features (N, 5) float32 and 0/1 labels (N,) float32, by `knobs`: params'
     `confirmation` section (epochs, batch_size, learning_rate, seed)."""
     config = subset(FitConfig, knobs, label="the confirmation network", loss_name="confirmation.train_loss",
                     deterministic=deterministic)

@@ -70,6 +70,7 @@ class LearnedConfirmation:
     delete_after_s: float
     delete_after_scans: float
     score: Callable[[Evidence], float]
+    reads_evidence = True  # LiveTracks makes each association's Evidence only for a rule that reads it
 
     def __post_init__(self) -> None:
         if not 1 <= self.n <= MAX_N:

@@ -18,7 +18,8 @@ issue 36).
 
 An association comes with its `Evidence` (the gate's normalised error, the time since the track's
 previous plot in scans, the plots the track had, the horizontal and vertical speeds the two plots imply), which
-a learned rule scores and the others ignore.
+a learned rule scores; `pipeline.tracker.tracks.LiveTracks` makes it only for a rule whose `reads_evidence` is
+true, and hands the others None.
 
 The default rule is the thesis's (`ThesisWeights`); `pipeline.tracker.m_of_n.MOfN` is the usual
 alternative (M-of-N confirmation, time-out deletion), `pipeline.tracker.sprt.SequentialRatioTest` the

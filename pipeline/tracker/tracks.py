@@ -93,6 +93,7 @@ class LiveTracks:
         if latest_plots < 0:
             raise ValueError(f"latest_plots must be at least 0, got {latest_plots}")
         self.plots, self.management, self.cell_m, self.latest_plots = plots, management, cell_m, latest_plots
+        self._reads_evidence = getattr(management, "reads_evidence", False)  # the others ignore it: not made
         self.tracks: list[Track | None] = [None] * capacity
         self.position = np.full((capacity, 3), np.inf)
         self.last_plot = np.full((capacity, 3), np.inf)
@@ -246,7 +247,7 @@ class LiveTracks:
         track's rows keep its first and its `latest_plots` latest: the one that falls out of the
         latest is dropped."""
         self.changed.add(slot)
-        evidence = self._evidence(slot, row, error)
+        evidence = self._evidence(slot, row, error) if self._reads_evidence else None
         rows = self.tracks[slot].rows
         rows.append(row)
         if len(rows) > self.latest_plots + 1:
