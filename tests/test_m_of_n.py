@@ -162,6 +162,21 @@ def test_initiation_table_per_rule_fastest_first_with_false_tracks_per_hour_and_
         "plots_reference": {"initiation_mean_s": 1.1, "initiation_p95_s": 6.0, "false_tracks": 0.0},
         "via_4000": {"OSPA": 250.0}})
     rows = comparison_tables.initiation_rows(runs, "thesis", 50.0)
-    assert comparison_tables.initiation_table(rows).splitlines()[2:] == [
-        "| imm_4000_m_of_n | m_of_n | 14.8 | 24 | 1.50 |", "| imm_4000 | thesis | 23.2 | 42 | 0.02 |"]
+    assert comparison_tables.initiation_table(rows, hours=50.0).splitlines()[2:] == [
+        "| imm_4000_m_of_n | m_of_n | 14.8 | 24 | 1.50 | – | – |", "| imm_4000 | thesis | 23.2 | 42 | 0.02 | – | – |"]
     assert figures.initiation_picture(rows).startswith(b"\x89PNG")
+
+
+def test_initiation_table_reads_another_rule_against_the_default_with_paired_intervals():
+    """A run under another rule is read against its method's run under the default rule: the paired intervals of
+    the initiation time (s) and of the false tracks, per draw in the intervals, per flying hour in the table."""
+    from pipeline.reports import comparison_tables
+
+    runs = tf.run_records({
+        "imm_gnn_4000": {"initiation_mean_s": 23.2, "initiation_p95_s": 42.0, "false_tracks": 1.0},
+        "imm_gnn_4000_learned": {"initiation_mean_s": 10.0, "initiation_p95_s": 20.0, "false_tracks": 3.0}})
+    paired = {"initiation_mean_s": {"imm_gnn_4000_learned": {"imm_gnn_4000": [-14.0, -12.5]}},
+              "false_tracks": {"imm_gnn_4000_learned": {"imm_gnn_4000": [-1.0, 5.0]}}}
+    rows = comparison_tables.initiation_rows(runs, "thesis", 50.0)
+    assert comparison_tables.initiation_table(rows, {"paired": paired}, 50.0).splitlines()[2] == (
+        "| imm_gnn_4000_learned | learned | 10.0 | 20 | 0.06 | [-14.00, -12.50] | [-0.02, +0.10] |")

@@ -365,7 +365,8 @@ def metrics_by_strategy(scenarios: list[Scenario], ordered: list[UnitResult]) ->
     return by_strategy
 
 
-PAIRED = ("OSPA", "GOSPA", "ROCA", "MAE", "tracks_per_aircraft")  # the metrics the comparison's verdicts compare
+PAIRED = ("OSPA", "GOSPA", "ROCA", "MAE", "tracks_per_aircraft", "false_tracks",  # the metrics the comparison's
+          "initiation_mean_s")                                                    # verdicts compare
 CONSTANT = ("target_plots", "false_plots", SPEED)  # the same on every resample, or a timing: no interval
 
 
@@ -378,7 +379,8 @@ def metric_intervals(params: Params, scenarios: list[Scenario], units: dict[Run,
     names = [name for name in run_metrics(first, 0) if name not in CONSTANT]
     draws = draws_of(scenarios)
     return intervals.run_intervals({run.name: results for run, results in units.items()},
-                                   lambda results: per_draw(run_metrics(results, 0), draws), names, PAIRED,
+                                   lambda results: per_draw(run_metrics(results, 0), draws), names,
+                                   [name for name in PAIRED if name in names],
                                    chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
                                    [scenario.scenario_id for scenario in scenarios])
 

@@ -323,7 +323,8 @@ def run_metrics(results: list[SceneResult], plots: int) -> dict[str, float]:
     return metrics
 
 
-PAIRED = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches")  # the verdicts'
+PAIRED = ("GOSPA", "GOSPA_localisation", "GOSPA_missed", "GOSPA_false", "track_switches",  # the verdicts';
+          "tracks_per_aircraft", "false_tracks", "initiation_mean_s")  # the scorecard's where the scenes have it
 
 
 def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list[SceneResult]]) -> dict:
@@ -335,7 +336,7 @@ def metric_intervals(params: Params, tracked: list[Scene], units: dict[Run, list
     draws = len({scene.draw for scene in tracked})
     return intervals.run_intervals({run.name: results for run, results in units.items()},
                                    lambda results: per_draw(run_metrics(results, 0), draws), names,
-                                   PAIRED, chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
+                                   [name for name in PAIRED if name in names], chosen.bootstrap_replicates, chosen.confidence, chosen.bootstrap_seed,
                                    [scene.scenario_id for scene in tracked])
 
 

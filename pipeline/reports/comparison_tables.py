@@ -172,12 +172,29 @@ def initiation_rows(runs: Mapping[Run, dict], default_rule: str, hours: float) -
     return sorted(rows, key=lambda row: (row[2], row[4], row[0].name))
 
 
-def initiation_table(rows: list[tuple[Run, str, float, float, float]]) -> str:
-    lines = ["| tracker | rule | initiation mean (s) | initiation 95th percentile (s) | false tracks per hour |",
-             "|---|---|---|---|---|"]
-    lines += [f"| {run.name} | {rule} | {mean:.1f} | {p95:.0f} | {per_hour:.2f} |"
-              for run, rule, mean, p95, per_hour in rows]
+def initiation_table(rows: list[tuple[Run, str, float, float, float]], intervals: dict | None = None,
+                     hours: float = 1.0) -> str:
+    """The rows of `initiation_rows` as a table; with the report's `intervals` (`tracker_intervals.json`'s), a run
+    under another rule than its method's run under the default rule (same method and window, no `management`)
+    also gets the paired 95 % intervals of the differences to that run: initiation time (s) and false tracks per
+    hour (the per-draw count's interval over `hours`), so "faster at equal false tracks" is read beyond the noise."""
+    names = {(run.method, run.window_m): run.name for run, *_ in rows if not run.reference and not run.management}
+    lines = ["| tracker | rule | initiation mean (s) | initiation 95th percentile (s) | false tracks per hour | "
+             "initiation against the default rule (s) | false tracks per hour against it |", "|---" * 7 + "|"]
+    for run, rule, mean, p95, per_hour in rows:
+        base = names.get((run.method, run.window_m)) if run.management else None
+        start, false = (_paired(intervals, "initiation_mean_s", run.name, base),
+                        _paired(intervals, "false_tracks", run.name, base)) if base else (None, None)
+        lines.append(f"| {run.name} | {rule} | {mean:.1f} | {p95:.0f} | {per_hour:.2f} | {_interval(start)} | "
+                     f"{_interval(false, hours)} |")
     return "\n".join(lines)
+
+
+def _interval(pair: list[float] | None, scale: float = 1.0) -> str:
+    """A paired interval as "[low, high]" (divided by `scale`), "–" where there is none."""
+    if pair is None or not all(np.isfinite(pair)):
+        return "–"
+    return f"[{pair[0] / scale:+.2f}, {pair[1] / scale:+.2f}]"
 
 
 def continuity_table(runs: Mapping[Run, dict], by_strategy: dict[str, dict]) -> str:

@@ -211,7 +211,7 @@ def run_compare(params: Params, windows_dir: Path, models_dir: Path, reports_dir
         *(["## GOSPA and its parts", f"{GOSPA_INTRO} Cutoff {params.evaluate.gospa_cutoff_m:.0f} m, order "
             f"{params.evaluate.gospa_order:g}; best GOSPA first.", gospa_part] if gospa_part else []),
         *([f"## {SCORECARD_TITLE}", *card_part] if card_part else []),
-        f"## {INITIATION_TITLE}", initiation_intro(hours), initiation_table(initiation),
+        f"## {INITIATION_TITLE}", initiation_intro(hours), initiation_table(initiation, intervals["trackers"], hours),
         f"![Initiation time against false tracks per hour]({INITIATION_PICTURE})",
         f"## {SCENES_TITLE}", scenes_intro(comparison["scenes"], params.evaluate.gospa_cutoff_m,
                                            params.evaluate.gospa_order),
