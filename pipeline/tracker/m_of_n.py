@@ -16,9 +16,11 @@ confirmation; deletion after a time without an update, as Stone Soup's `UpdateTi
 - **Deletion.** A tentative track with no hit in its last `n` opportunities is deleted; a
   confirmed track silent for longer than max(`delete_after_s`, `delete_after_scans` scans) is
   deleted (a plot arriving exactly then, to the time quantum, is still offered to it:
-  `pipeline.tracker.tracks`). The params' 20 s is 3.33 scans of the 6 s radar; 3.25 scans keep
-  the 20 s there and for every faster radar, and let a confirmed track of a slower one survive
-  two missed scans as it does at 6 s (39 s at 12 s).
+  `pipeline.tracker.tracks`). The params' 32 s is 5.33 scans of the 6 s radar: a confirmed track
+  survives four missed scans (chosen on validation scenes, issue 34: at 20 s, two, an aircraft's
+  track broke at every third missed scan and came back as a second track); 5.25 scans keep the 32 s
+  there and for every faster radar, and let a confirmed track of a slower one survive four missed
+  scans too (63 s at 12 s).
 
 The weight (the update table's `weight` column) is the track's hits of its last `n`
 opportunities as binary digits, the latest the highest, scaled into [0, 1): a tentative
