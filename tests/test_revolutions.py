@@ -89,12 +89,12 @@ def tracks_by_plot(plots: Plots, method: str, rule: str, changes: dict | None = 
 
 def test_each_rule_counts_its_silence_in_scans_of_the_latest_plots_radar():
     """The params' rules: the thesis lowers a track after 12 s, or 2 scans if longer; M-of-N records
-    a miss 1.5 scans after a hit and deletes a confirmed track after 20 s, or 3.25 scans if longer."""
+    a miss 1.5 scans after a hit and deletes a confirmed track after 32 s, or 5.25 scans if longer."""
     params = tf.make_params().tracker.management
     thesis, m_of_n = ThesisWeights.from_params(params), MOfN.from_params(params)
     assert [thesis.silence(thesis.start, period) for period in (4.0, 6.0, 12.0)] == [12.0, 12.0, 24.0]
     assert [m_of_n.silence(m_of_n.start, period) for period in (4.0, 6.0, 12.0)] == [6.0, 9.0, 18.0]
-    assert [m_of_n.silence(1.0, period) for period in (4.0, 6.0, 12.0)] == [20.0, 20.0, 39.0]
+    assert [m_of_n.silence(1.0, period) for period in (4.0, 6.0, 12.0)] == [32.0, 32.0, 63.0]
     assert ThesisWeights(0.4, 0.8, 1.0, 0.2, silence_s=12.0).silence(0.4, 12.0) == 12.0  # 0 scans: seconds only
 
 
