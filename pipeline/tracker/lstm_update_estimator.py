@@ -149,14 +149,26 @@ class LSTMUpdateEstimator:
         No covariance: the network calibrates only the position's (`LSTMUpdate.estimate_covariance`)."""
         return self.velocity[slots], None
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The ensembles of the tracks at `slots` (P,), each a different track, stepped each with its plot
         of `rows` (P,) from row `indices` (P,) of `prediction`, in one LSTM call: the point estimates'
         positions (P, 3) and calibrated covariances (P, 3, 3). The masks are drawn pair by pair; a call
         of fewer than `batch_rows.GEMM_ROWS` rows (a track of 1 to 3 copies alone) runs on repeated
-        pairs, whose masks are ones (no draws)."""
+        pairs, whose masks are ones (no draws).
+
+        With `prediction` None (a scan's young tracks) the tracks are predicted here in one call (a
+        track's prediction is the same in any call) and then stepped one LSTM call each, in order, as
+        `update` steps them: MKL's dgemm computes the last rows of a call (its row count modulo
+        `batch_rows.GEMM_ROWS`) with another kernel, in other last bits, so a track's 1 + `mc_samples`
+        copies (17: a tail of one row) come out of a call of one track, as plot by plot, other than out
+        of a call of several."""
         plots, count = tracks.plots, len(slots)
+        if prediction is None:
+            prediction = self.predict(tracks, slots, plots.time[rows])
+            stepped = [self.update_pairs(tracks, slots[k:k + 1], rows[k:k + 1], prediction, np.array([k]))
+                       for k in range(count)]
+            return np.concatenate([p for p, _ in stepped]), np.concatenate([c for _, c in stepped])
         moved = prediction.state
         padded = batch_rows.padding(count, self.samples)
         at = torch.as_tensor(np.asarray(indices)[padded], device=self.device)
