@@ -80,6 +80,8 @@ class LSTMUpdateEstimator:
                                             lambda rows: self._example(rows)[0])
         self._step = step_runtime.traced(model, step_runtime.LSTMStep if self.sample else step_runtime.LSTMStepUnmasked,
                                          runtime, lambda rows: self._example(rows)[1])
+        self._step_alone = step_runtime.traced(model, step_runtime.LSTMStepAlone, runtime,
+                                               lambda rows: self._example(rows)[1]) if self.sample else None
 
     def _tensor(self, values: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(values, dtype=self.dtype, device=self.device)
@@ -158,17 +160,19 @@ class LSTMUpdateEstimator:
         pairs, whose masks are ones (no draws).
 
         With `prediction` None (a scan's young tracks) the tracks are predicted here in one call (a
-        track's prediction is the same in any call) and then stepped one LSTM call each, in order, as
-        `update` steps them: MKL's dgemm computes the last rows of a call (its row count modulo
-        `batch_rows.GEMM_ROWS`) with another kernel, in other last bits, so a track's 1 + `mc_samples`
-        copies (17: a tail of one row) come out of a call of one track, as plot by plot, other than out
-        of a call of several."""
+        track's prediction is the same in any call) and stepped as `update` steps each alone, plot by
+        plot: in one call of `step_runtime.LSTMStepAlone`, whose matrix products give each track the
+        rows of a call of its own (MKL's dgemm computes a call's last rows, its row count modulo
+        `batch_rows.GEMM_ROWS`, in other last bits), or, without dropout, one call per track."""
         plots, count = tracks.plots, len(slots)
+        step = self._step
         if prediction is None:
-            prediction = self.predict(tracks, slots, plots.time[rows])
-            stepped = [self.update_pairs(tracks, slots[k:k + 1], rows[k:k + 1], prediction, np.array([k]))
-                       for k in range(count)]
-            return np.concatenate([p for p, _ in stepped]), np.concatenate([c for _, c in stepped])
+            prediction, indices = self.predict(tracks, slots, plots.time[rows]), np.arange(count)
+            if not self.sample:
+                stepped = [self.update_pairs(tracks, slots[k:k + 1], rows[k:k + 1], prediction, indices[k:k + 1])
+                           for k in range(count)]
+                return np.concatenate([p for p, _ in stepped]), np.concatenate([c for _, c in stepped])
+            step = self._step_alone
         moved = prediction.state
         padded = batch_rows.padding(count, self.samples)
         at = torch.as_tensor(np.asarray(indices)[padded], device=self.device)
@@ -178,7 +182,7 @@ class LSTMUpdateEstimator:
             drawn = [self.model.dropout_masks(self.samples, self.generator) for _ in range(count)]
             masks = (torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count)).to(self.device),)
         with torch.no_grad():
-            *after, position, covariance = self._step(*(part[at] for part in _parts(moved.ensemble)), z, R,
-                                                      moved.dt[at], *masks)
+            *after, position, covariance = step(*(part[at] for part in _parts(moved.ensemble)), z, R,
+                                                moved.dt[at], *masks)
         self._store(slots, Ensemble(*(part[:count] for part in after)), plots.time[rows])
         return position[:count].cpu().numpy(), covariance[:count].cpu().numpy()
