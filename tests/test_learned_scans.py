@@ -220,3 +220,14 @@ def test_the_lstm_step_alone_gives_each_track_the_numbers_of_its_own_call(copies
         for k in range(count):
             for name, value, own in zip(("x", "h", "c", "age", "position", "covariance"), together, alone[k]):
                 assert torch.equal(value[k], own[0]), (count, k, name)
+
+
+def test_the_dropout_masks_of_several_tracks_are_each_tracks_own_draws():
+    """Drawn for several tracks at once (`LSTMUpdate.dropout_masks(tracks=...)`), the masks are those drawn
+    track after track, and the generator ends where it would: the updates' draws do not change."""
+    model = lstm_update(16, 1.0)
+    for tracks in (1, 2, 7):
+        one_by_one, together = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+        expected = torch.stack([model.dropout_masks(17, one_by_one) for _ in range(tracks)])
+        assert torch.equal(model.dropout_masks(17, together, tracks=tracks), expected)
+        assert torch.equal(torch.rand(4, generator=together), torch.rand(4, generator=one_by_one))

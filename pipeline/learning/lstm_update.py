@@ -249,13 +249,21 @@ class LSTMUpdate(nn.Module):
         correction = (frame.transpose(-1, -2) @ correction).reshape(B, N, STATES)
         return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1), ensemble.age + 1), prior
 
-    def dropout_masks(self, copies: int, generator: torch.Generator) -> Tensor:
+    def dropout_masks(self, copies: int, generator: torch.Generator, tracks: int | None = None) -> Tensor:
         """One track's dropout masks (copies, 16 + H), as `nn.functional.dropout` draws them for the
         `step` of that one track: Bernoulli(1 - p) over 1 - p, drawn from `generator` in the same
-        order, so that masks drawn track by track give the numbers of stepping the tracks one at a time."""
+        order, so that masks drawn track by track give the numbers of stepping the tracks one at a time.
+        With `tracks`, that many tracks' (tracks, copies, 16 + H), each track's drawn in turn as a call
+        for it alone draws them (a draw into a track's contiguous rows is the draw of a tensor of its
+        own), scaled in one division: the same numbers for one tensor operation per track, not four."""
         keep = 1.0 - self.config.dropout
-        masks = torch.empty((copies, FEATURES + self.config.hidden), dtype=self.dtype)
-        return masks.bernoulli_(keep, generator=generator).div_(keep)
+        if tracks is None:
+            masks = torch.empty((copies, FEATURES + self.config.hidden), dtype=self.dtype)
+            return masks.bernoulli_(keep, generator=generator).div_(keep)
+        masks = torch.empty((tracks, copies, FEATURES + self.config.hidden), dtype=self.dtype)
+        for track in masks:
+            track.bernoulli_(keep, generator=generator)
+        return masks.div_(keep)
 
     def scan_periods(self, dt: Tensor) -> Tensor:
         """The scan periods (B,) a prediction over dt (B,) s spans: dt / `time_scale_s` rounded, in

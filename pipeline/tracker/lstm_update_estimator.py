@@ -179,8 +179,10 @@ class LSTMUpdateEstimator:
         z, R = self._tensor(plots.position[rows[padded]]), self._tensor(plots.covariance[rows[padded]])
         masks = ()
         if self.sample:
-            drawn = [self.model.dropout_masks(self.samples, self.generator) for _ in range(count)]
-            masks = (torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count)).to(self.device),)
+            drawn = self.model.dropout_masks(self.samples, self.generator, tracks=count)
+            if len(padded) > count:
+                drawn = torch.cat([drawn, drawn.new_ones((len(padded) - count, *drawn.shape[1:]))])
+            masks = (drawn.to(self.device),)
         with torch.no_grad():
             *after, position, covariance = step(*(part[at] for part in _parts(moved.ensemble)), z, R,
                                                 moved.dt[at], *masks)
