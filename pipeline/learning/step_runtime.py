@@ -13,7 +13,9 @@ eager, so that the tracks are unchanged and a row still does not depend on the r
 (`batch_rows`). The runtimes (`tracker.learned_runtime`):
 
 - `script`: the traced function (not frozen: `torch.jit.freeze` would fold the weights into
-  constants, which gains nothing measurable here);
+  constants, which gains nothing measurable here), run with TorchScript's graph optimisation off
+  (`Unoptimised`: its profiling and compiling cost the first calls of every process and gain nothing
+  on the CPU);
 - `eager`: the modules called as they are.
 
 The benchmark prints two others beside these. ONNX Runtime of the network part alone (the GRU cell
