@@ -68,6 +68,8 @@ Shapes: B tracks, N samples, T steps, H hidden units; float64 like `torch_filter
 
 from __future__ import annotations
 
+import functools
+
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -152,6 +154,14 @@ def level_frames(position: Tensor, velocity: Tensor) -> Tensor:
     return torch.stack([forward, torch.linalg.cross(up, forward), up], -2)
 
 
+@functools.lru_cache(maxsize=16)
+def _start_velocities(samples: int, dtype: torch.dtype, std_mps: float) -> Tensor:
+    """`LSTMUpdate.start_velocities`, made once per (samples, dtype, std): callers get a copy."""
+    draws = torch.randn((samples - 1) // 2, 3, generator=torch.Generator().manual_seed(0), dtype=dtype)
+    still = torch.zeros(1 + (samples - 1) % 2, 3, dtype=dtype)
+    return torch.cat([still, draws, -draws]) * std_mps
+
+
 def spread(samples: Tensor) -> tuple[Tensor, Tensor]:
     """The point estimate (B, k), copy 0 of (B, N, k), and the other copies' second moment about it
     (B, k, k) (module docstring); zero for N = 1."""
@@ -190,10 +200,10 @@ class LSTMUpdate(nn.Module):
     def start_velocities(self, samples: int) -> Tensor:
         """The copies' start velocities (samples, 3) m/s: copy 0 still, the others antithetic pairs of
         normal draws (a fixed generator: the same for every track and run) times
-        `start_velocity_std_mps`, an odd one out still, so their mean is zero."""
-        draws = torch.randn((samples - 1) // 2, 3, generator=torch.Generator().manual_seed(0), dtype=self.dtype)
-        still = torch.zeros(1 + (samples - 1) % 2, 3, dtype=self.dtype)
-        return torch.cat([still, draws, -draws]) * self.config.start_velocity_std_mps
+        `start_velocity_std_mps`, an odd one out still, so their mean is zero. A new tensor each call
+        (`_start_velocities` keeps them: the tracker starts tracks one at a time, and a generator's
+        making and seeding cost more than the rest of a start)."""
+        return _start_velocities(samples, self.dtype, self.config.start_velocity_std_mps).clone()
 
     def started(self, z: Tensor, samples: int) -> Ensemble:
         """`samples` copies of tracks started at plots z (B, 3): at the plot, velocities
