@@ -185,3 +185,50 @@ def test_padding_makes_whole_matrix_and_vector_steps(count, rows_each, elements_
     rows = batch_rows.padding(count, rows_each, elements_each)
     assert len(rows) == expected
     np.testing.assert_array_equal(rows, np.minimum(np.arange(expected), count - 1))
+
+
+@pytest.mark.parametrize("runtime", ["script", "eager"])
+@pytest.mark.parametrize("copies", [16, 8, 3, 2])
+def test_the_lstm_step_alone_gives_each_track_the_numbers_of_its_own_call(copies, runtime):
+    """A scan's young tracks step together (`step_runtime.LSTMStepAlone`) with each track's numbers, to the bit,
+    those of its own call (`LSTMStep`, padded as `update_pairs` pads one track): 17 and 9 copies leave one row
+    of a call of one track to MKL's last-rows kernel, 4 none, 3 copies pad it with a second track."""
+    from pipeline.learning import step_runtime
+    from pipeline.learning.lstm_update import FEATURES
+    from pipeline.tracker.lstm_update_estimator import LSTMUpdateEstimator
+    model = lstm_update(copies, 1.0)
+    estimator = LSTMUpdateEstimator(model, 0, runtime=runtime)
+    assert estimator.samples == copies + 1
+    generator, tracks = torch.Generator().manual_seed(3), 11
+    normal = lambda *shape: torch.randn(*shape, generator=generator, dtype=torch.float64)  # noqa: E731
+    start = torch.full((tracks, 3), 6.4e6, dtype=torch.float64) + normal(tracks, 3) * 1e4
+    ensemble = model.started(start, copies + 1)
+    x, h, c = ensemble.x + normal(*ensemble.x.shape) * 50.0, normal(*ensemble.h.shape), normal(*ensemble.c.shape)
+    age, dt = torch.randint(1, 6, (tracks,), generator=generator), torch.full((tracks,), 6.0, dtype=torch.float64)
+    z, R = start + 1e3 + normal(tracks, 3) * 100.0, torch.eye(3, dtype=torch.float64).expand(tracks, 3, 3) * 1e4
+    masks = torch.stack([model.dropout_masks(copies + 1, generator) for _ in range(tracks)])
+
+    def stepped(step, rows: np.ndarray) -> tuple[torch.Tensor, ...]:
+        at = torch.as_tensor(rows)
+        with torch.no_grad():
+            return step(x[at], h[at], c[at], age[at], z[at], R[at], dt[at], masks[at])
+
+    alone = [stepped(estimator._step, np.full(1, k)[batch_rows.padding(1, copies + 1)]) for k in range(tracks)]
+    assert isinstance(estimator._step_alone, step_runtime.Unoptimised if runtime == "script" else
+                      step_runtime.LSTMStepAlone)
+    for count in (1, 2, 3, 5, tracks):
+        together = stepped(estimator._step_alone, np.arange(count)[batch_rows.padding(count, copies + 1)])
+        for k in range(count):
+            for name, value, own in zip(("x", "h", "c", "age", "position", "covariance"), together, alone[k]):
+                assert torch.equal(value[k], own[0]), (count, k, name)
+
+
+def test_the_dropout_masks_of_several_tracks_are_each_tracks_own_draws():
+    """Drawn for several tracks at once (`LSTMUpdate.dropout_masks(tracks=...)`), the masks are those drawn
+    track after track, and the generator ends where it would: the updates' draws do not change."""
+    model = lstm_update(16, 1.0)
+    for tracks in (1, 2, 7):
+        one_by_one, together = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+        expected = torch.stack([model.dropout_masks(17, one_by_one) for _ in range(tracks)])
+        assert torch.equal(model.dropout_masks(17, together, tracks=tracks), expected)
+        assert torch.equal(torch.rand(4, generator=together), torch.rand(4, generator=one_by_one))

@@ -90,7 +90,8 @@ def assert_as_pytorch(function: type[torch.nn.Module], model: torch.nn.Module, i
     generator = torch.Generator().manual_seed(11)
     script = step_runtime.traced(model, function, "script", lambda rows: inputs(rows, generator))
     eager = step_runtime.traced(model, function, "eager", lambda rows: inputs(rows, generator))
-    assert isinstance(script, torch.jit.ScriptModule) and not isinstance(eager, torch.jit.ScriptModule)
+    assert isinstance(script, step_runtime.Unoptimised) and isinstance(script.module, torch.jit.ScriptModule)
+    assert not isinstance(eager, (step_runtime.Unoptimised, torch.jit.ScriptModule))
     for rows in SIZES:
         given = inputs(rows, generator)
         with torch.no_grad():

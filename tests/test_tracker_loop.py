@@ -385,3 +385,50 @@ def test_the_warning_advises_what_is_left_to_try(caplog, method, fallback, advic
     with caplog.at_level("WARNING", logger="pipeline"):
         warn_refusals(method, 4000.0, RefusalCounts(in_window=4, refused=4), 0.5, fallback)
     assert advice in caplog.text
+
+
+@pytest.mark.parametrize("rule", [RULE, ThesisWeights(start=0.4, candidate=0.8, confirmed_weight=1.0, step=0.2,
+                                                      silence_s=0.0, silence_scans=2.0)])
+def test_survives_tells_whether_management_keeps_a_track_to_a_time(rule):
+    """`LiveTracks.survives` replays a track's lowerings without making them: for every time it agrees with
+    what `manage` up to that time does to a copy of the tracks (a young track, one raised to candidate, and
+    the boundary's quantum), so the loop updates ahead only the young tracks that live to their plots."""
+    recording = plots([0, 6, 12, 18], [0, 500, 1000, 1500])
+    for associations in (0, 2):
+        for now in np.arange(0.0, 80.0, 0.25).tolist() + [12.0 + 1.0 / 128.0, 12.0 + 2.0 / 128.0]:
+            live = LiveTracks(recording, rule, latest_plots=0)
+            slot = live.start(0)
+            for row in range(1, associations + 1):
+                live.associate(slot, row, recording.position[row])
+            expected = live.survives(slot, tf.T0 + associations * 6 + now)
+            live.manage(tf.T0 + associations * 6 + now)
+            assert expected == live.holds(slot, 0), (associations, now)
+
+
+def test_global_nearest_neighbour_updates_young_tracks_ahead_as_plot_by_plot():
+    """A scan's chosen young tracks are updated in one `update_pairs` call with no prediction (the estimator
+    predicts them itself), after the mature ones; a young track that management deletes before its plot's
+    turn is not updated (its plot starts a track): the updates are those of the plot-by-plot loop."""
+    # track A at 0 m takes a plot each scan; track B at 9 km, silent in scan 1, is chosen in scan 2 by a plot
+    # 0.1 s after its silence ran out (12.5 s): deleted at that plot's turn, which starts track C
+    recording = plots([0.0, 0.5, 6.0, 12.0, 12.6], [0.0, 9000.0, 300.0, 600.0, 9300.0])
+
+    class Counting(StayingEstimator):
+        def __init__(self, pairwise: bool) -> None:
+            super().__init__()
+            self.pairwise, self.young_calls = pairwise, []
+
+        def update_pairs(self, tracks, slots, rows, prediction, indices):
+            if prediction is None:
+                self.young_calls.append(rows.tolist())
+            return super().update_pairs(tracks, slots, rows, prediction, indices)
+
+    tables = []
+    for pairwise in (True, False):
+        estimator = Counting(pairwise)
+        tables.append(track(recording, composition(estimator, assigner=GlobalNearestPerScan(), mature_from=3)))
+        if pairwise:
+            assert estimator.young_calls == [[3]]  # scan 2: A's plot, not B's (scan 1 is one plot: no batch)
+    for column in tables[0]:
+        np.testing.assert_array_equal(tables[0][column], tables[1][column], err_msg=column)
+    assert tf.tracks_of(tables[0]) == {0: [0, 2, 3], 1: [1], 2: [4]}

@@ -68,6 +68,8 @@ Shapes: B tracks, N samples, T steps, H hidden units; float64 like `torch_filter
 
 from __future__ import annotations
 
+import functools
+
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -152,6 +154,14 @@ def level_frames(position: Tensor, velocity: Tensor) -> Tensor:
     return torch.stack([forward, torch.linalg.cross(up, forward), up], -2)
 
 
+@functools.lru_cache(maxsize=16)
+def _start_velocities(samples: int, dtype: torch.dtype, std_mps: float) -> Tensor:
+    """`LSTMUpdate.start_velocities`, made once per (samples, dtype, std): callers get a copy."""
+    draws = torch.randn((samples - 1) // 2, 3, generator=torch.Generator().manual_seed(0), dtype=dtype)
+    still = torch.zeros(1 + (samples - 1) % 2, 3, dtype=dtype)
+    return torch.cat([still, draws, -draws]) * std_mps
+
+
 def spread(samples: Tensor) -> tuple[Tensor, Tensor]:
     """The point estimate (B, k), copy 0 of (B, N, k), and the other copies' second moment about it
     (B, k, k) (module docstring); zero for N = 1."""
@@ -190,10 +200,10 @@ class LSTMUpdate(nn.Module):
     def start_velocities(self, samples: int) -> Tensor:
         """The copies' start velocities (samples, 3) m/s: copy 0 still, the others antithetic pairs of
         normal draws (a fixed generator: the same for every track and run) times
-        `start_velocity_std_mps`, an odd one out still, so their mean is zero."""
-        draws = torch.randn((samples - 1) // 2, 3, generator=torch.Generator().manual_seed(0), dtype=self.dtype)
-        still = torch.zeros(1 + (samples - 1) % 2, 3, dtype=self.dtype)
-        return torch.cat([still, draws, -draws]) * self.config.start_velocity_std_mps
+        `start_velocity_std_mps`, an odd one out still, so their mean is zero. A new tensor each call
+        (`_start_velocities` keeps them: the tracker starts tracks one at a time, and a generator's
+        making and seeding cost more than the rest of a start)."""
+        return _start_velocities(samples, self.dtype, self.config.start_velocity_std_mps).clone()
 
     def started(self, z: Tensor, samples: int) -> Ensemble:
         """`samples` copies of tracks started at plots z (B, 3): at the plot, velocities
@@ -249,13 +259,21 @@ class LSTMUpdate(nn.Module):
         correction = (frame.transpose(-1, -2) @ correction).reshape(B, N, STATES)
         return Ensemble(prior + correction, h.reshape(B, N, -1), c.reshape(B, N, -1), ensemble.age + 1), prior
 
-    def dropout_masks(self, copies: int, generator: torch.Generator) -> Tensor:
+    def dropout_masks(self, copies: int, generator: torch.Generator, tracks: int | None = None) -> Tensor:
         """One track's dropout masks (copies, 16 + H), as `nn.functional.dropout` draws them for the
         `step` of that one track: Bernoulli(1 - p) over 1 - p, drawn from `generator` in the same
-        order, so that masks drawn track by track give the numbers of stepping the tracks one at a time."""
+        order, so that masks drawn track by track give the numbers of stepping the tracks one at a time.
+        With `tracks`, that many tracks' (tracks, copies, 16 + H), each track's drawn in turn as a call
+        for it alone draws them (a draw into a track's contiguous rows is the draw of a tensor of its
+        own), scaled in one division: the same numbers for one tensor operation per track, not four."""
         keep = 1.0 - self.config.dropout
-        masks = torch.empty((copies, FEATURES + self.config.hidden), dtype=self.dtype)
-        return masks.bernoulli_(keep, generator=generator).div_(keep)
+        if tracks is None:
+            masks = torch.empty((copies, FEATURES + self.config.hidden), dtype=self.dtype)
+            return masks.bernoulli_(keep, generator=generator).div_(keep)
+        masks = torch.empty((tracks, copies, FEATURES + self.config.hidden), dtype=self.dtype)
+        for track in masks:
+            track.bernoulli_(keep, generator=generator)
+        return masks.div_(keep)
 
     def scan_periods(self, dt: Tensor) -> Tensor:
         """The scan periods (B,) a prediction over dt (B,) s spans: dt / `time_scale_s` rounded, in

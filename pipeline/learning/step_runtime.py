@@ -13,7 +13,9 @@ eager, so that the tracks are unchanged and a row still does not depend on the r
 (`batch_rows`). The runtimes (`tracker.learned_runtime`):
 
 - `script`: the traced function (not frozen: `torch.jit.freeze` would fold the weights into
-  constants, which gains nothing measurable here);
+  constants, which gains nothing measurable here), run with TorchScript's graph optimisation off
+  (`Unoptimised`: its profiling and compiling cost the first calls of every process and gain nothing
+  on the CPU);
 - `eager`: the modules called as they are.
 
 The benchmark prints two others beside these. ONNX Runtime of the network part alone (the GRU cell
@@ -44,6 +46,7 @@ from torch import Tensor, nn
 
 from pipeline.filters import torch_filters
 from pipeline.filters.torch_filters import State, Step
+from pipeline.learning import batch_rows
 from pipeline.learning.kalman_net import KalmanNet, Memory
 from pipeline.learning.lstm_update import Ensemble, LSTMUpdate
 
@@ -116,6 +119,67 @@ class LSTMStep(nn.Module):
         return (after.x, after.h, after.c, after.age, *self.model.estimate_covariance(after.x[..., ::3], after.age, R))
 
 
+class LSTMStepAlone(LSTMStep):
+    """`LSTMStep` of B tracks, each track's numbers those of a call of that track alone (the young tracks of
+    a scan, which plot by plot step one call each: `pipeline.tracker.lstm_update_estimator`).
+
+    MKL's dgemm computes a call's last rows, its row count modulo `batch_rows.GEMM_ROWS`, with another
+    kernel than the others, in other last bits: a track's N copies alone (N = 17: one such row, its last
+    copy) are not the same rows as in a call of several tracks. Each of the step's matrix products (the
+    LSTM cell's two, the output layer) is therefore split: the copies that a call of one track computes
+    in whole blocks of rows go through one product for all B tracks, each track's padded with zero rows
+    to whole blocks (the padding depends on the model alone, so the trace holds for any B); its last
+    `tail` copies go through a batched product (`baddbmm`) of one item per track, a block of zero rows
+    and then the track's tail copies, so that they are again a product's last rows (one row alone, or
+    a pair, is computed by other kernels still, which depend on the product's sizes: measured with
+    torch 2.13 and MKL 2024.2). The cell is `nn.LSTMCell`'s CPU formula (ATen's `LSTMCell`: the hidden
+    product plus the input product, then the gates), the rest `LSTMUpdate.step`'s; the tests compare
+    it with one-track `LSTMStep` calls to the bit (`tests/test_learned_scans.py`)."""
+
+    def __init__(self, model: LSTMUpdate) -> None:
+        super().__init__(model)
+        samples, _ = model.ensemble()
+        alone = len(batch_rows.padding(1, samples)) * samples  # rows of a call of one track (padded)
+        self.tail = alone % batch_rows.GEMM_ROWS if alone == samples else 0  # padded: the padding is the tail
+        self.padding = -(samples - self.tail) % batch_rows.GEMM_ROWS  # zero rows after each track's block copies
+
+    def _linear(self, rows: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
+        """`nn.functional.linear` of rows (B, N, K) -> (B, N, O), each track's as in a call of it alone."""
+        tracks, block = rows.shape[0], rows.shape[1] - self.tail
+        head = rows[:, :block]
+        if self.padding:  # whole blocks per track, whatever the number of tracks (a constant in the trace)
+            head = torch.cat([head, head.new_zeros(tracks, self.padding, rows.shape[2])], 1)
+        out = nn.functional.linear(head.reshape(-1, rows.shape[2]), weight, bias).reshape(tracks, -1, bias.shape[0])
+        out = out[:, :block]
+        if not self.tail:
+            return out
+        lead = batch_rows.GEMM_ROWS
+        items = torch.cat([rows.new_zeros(tracks, lead, rows.shape[2]), rows[:, block:]], 1)
+        last = torch.baddbmm(bias.expand(tracks, lead + self.tail, bias.shape[0]), items,
+                             weight.t().expand(tracks, weight.shape[1], weight.shape[0]))
+        return torch.cat([out, last[:, lead:]], 1)
+
+    def forward(self, x: Tensor, h: Tensor, c: Tensor, age: Tensor, z: Tensor, R: Tensor, dt: Tensor, masks: Tensor
+                ) -> tuple[Tensor, ...]:
+        model = self.model
+        cell = model.cell
+        prior = model.predicted(x, dt)
+        f, frame = model.features(prior, z, R, dt)
+        gates = self._linear(h, cell.weight_hh, cell.bias_hh) + self._linear(f, cell.weight_ih, cell.bias_ih)
+        ingate, forgetgate, cellgate, outgate = gates.chunk(4, 2)
+        c_after = forgetgate.sigmoid() * c + ingate.sigmoid() * cellgate.tanh()
+        h_after = outgate.sigmoid() * c_after.tanh()
+        read = torch.cat([f, h_after], 2)
+        dropped = read * masks
+        if read.shape[1] > 1:  # copy 0: the point estimate
+            dropped = torch.cat([read[:, :1], dropped[:, 1:]], 1)
+        correction = self._linear(dropped, model.output.weight, model.output.bias) * model.output_scale
+        correction = (frame.transpose(-1, -2) @ correction.reshape(*correction.shape[:2], 3, 3)
+                      ).reshape(prior.shape)
+        after = Ensemble(prior + correction, h_after, c_after, age + 1)
+        return (after.x, after.h, after.c, after.age, *model.estimate_covariance(after.x[..., ::3], after.age, R))
+
+
 class LSTMStepUnmasked(LSTMStep):
     """`LSTMStep` without dropout (a model of dropout 0: one copy, no masks): the same outputs."""
 
@@ -131,7 +195,7 @@ _TRACED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {(f
 def traced(model: nn.Module, function: type[nn.Module], runtime: str, example: Callable[[int], tuple[Tensor, ...]]
            ) -> Callable[..., tuple[Tensor, ...]]:
     """`function(model)` (one of this module's steps) on `runtime` (`RUNTIMES`), traced on first use with
-    `example(TRACE_ROWS)` (inputs on the device it is to run on) and kept while `model` lives.
+    `example(TRACE_ROWS)` (inputs on the device it is to run on), run `Unoptimised`, and kept while `model` lives.
     ValueError naming `tracker.learned_runtime` for another runtime."""
     if runtime not in RUNTIMES:
         raise ValueError(f"tracker.learned_runtime = {runtime!r}: must be one of {RUNTIMES}")
@@ -144,5 +208,21 @@ def traced(model: nn.Module, function: type[nn.Module], runtime: str, example: C
     if key not in kept:
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # TorchScript's deprecation, and the tracer's on Python values
-            kept[key] = torch.jit.trace(step, inputs, check_trace=False)
+            kept[key] = Unoptimised(torch.jit.trace(step, inputs, check_trace=False))
     return kept[key]
+
+
+class Unoptimised:
+    """A traced step (`module`, a `torch.jit.ScriptModule`) called with TorchScript's graph optimisation off
+    (`torch.jit.optimized_execution(False)`): the interpreter runs the traced graph as it is. The profiling
+    executor's optimisation would first run a call or two profiling and then compile each step, 60-80 ms of
+    the first calls of every step in every process (more than the whole tracking of a one-minute
+    recording), and then run no faster on the CPU (no CPU fusion): measured with torch 2.13, one thread,
+    the LSTM update's step at 1, 20 and 100 tracks, the same per call within the noise, the same bits."""
+
+    def __init__(self, module: torch.jit.ScriptModule) -> None:
+        self.module = module
+
+    def __call__(self, *inputs: Tensor) -> tuple[Tensor, ...]:
+        with torch.jit.optimized_execution(False):
+            return self.module(*inputs)

@@ -27,7 +27,10 @@ memory does not grow with a track's age (`pipeline.tracker.tracks`). A track's p
 - `update_pairs(tracks, slots, rows, prediction, indices)` (`pairwise` estimators only): the
   updates of several different tracks (P,), each with its plot, from rows `indices` of one
   prediction, in one call: positions (P, 3) and covariances (P, 3, 3) or None. The loop makes a
-  scan's updates so; a track updated by it and then deleted may see its slot `start`ed again.
+  scan's updates so; a track updated by it and then deleted may see its slot `start`ed again. With
+  `prediction` None (a scan's young tracks, which the young-track gate predicts nothing for) the
+  estimator predicts the pairs itself, each at its plot, as `update` does without one, and ignores
+  `indices`.
 
 - `update_mixtures(tracks, hypotheses)` (estimators composed with a soft assigner, `pipeline.tracker.jpda`):
   the T tracks of a batch's `Hypotheses` (`pipeline.tracker.assigner`) each updated with all its plots,
@@ -74,5 +77,5 @@ class Estimator(Protocol):
     def update(self, tracks: LiveTracks, slot: int, row: int, prediction: Prediction | None, index: int
                ) -> tuple[np.ndarray, np.ndarray | None]: ...
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]: ...

@@ -138,11 +138,13 @@ class KalmanEstimator:
         latest update (`batch_filters.velocity_estimates` of the stored filters)."""
         return batch_filters.velocity_estimates(BatchState(self.x[slots], self.P[slots], self.mu[slots]))
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The filters of the tracks at `slots` (P,), each a different track, updated each with its
-        plot of `rows` (P,) from row `indices` (P,) of `prediction`: the new positions (P, 3) and
-        covariances (P, 3, 3)."""
+        plot of `rows` (P,) from row `indices` (P,) of `prediction` (None: predicted here, each to its
+        plot's time): the new positions (P, 3) and covariances (P, 3, 3)."""
+        if prediction is None:
+            prediction, indices = self.predict(tracks, slots, tracks.plots.time[rows]), np.arange(len(slots))
         return self._updated(tracks, slots, rows, prediction, indices)
 
     def update_mixtures(self, tracks: LiveTracks, hypotheses: Hypotheses) -> tuple[np.ndarray, np.ndarray]:

@@ -223,11 +223,14 @@ class KalmanNetEstimator:
                                                  np.array([index]))
         return position[0], covariance[0]
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The filters of the tracks at `slots` (P,), each a different track, updated each with its plot
-        of `rows` (P,) from row `indices` (P,) of a `predict_plot` step: the new positions (P, 3) and
-        covariances (P, 3, 3)."""
+        of `rows` (P,) from row `indices` (P,) of a `predict_plot` step (made here, one call for all, when
+        `prediction` is None or carries none: young tracks): the new positions (P, 3) and covariances
+        (P, 3, 3)."""
+        if prediction is None or prediction.state is None:
+            prediction, indices = self.predict_plot(tracks, slots, rows), np.arange(len(slots))
         step: PlotStep = prediction.state
         at = self._index(np.asarray(indices))
         z, _ = self._measured(tracks, rows)

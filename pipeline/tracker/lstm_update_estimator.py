@@ -80,6 +80,8 @@ class LSTMUpdateEstimator:
                                             lambda rows: self._example(rows)[0])
         self._step = step_runtime.traced(model, step_runtime.LSTMStep if self.sample else step_runtime.LSTMStepUnmasked,
                                          runtime, lambda rows: self._example(rows)[1])
+        self._step_alone = step_runtime.traced(model, step_runtime.LSTMStepAlone, runtime,
+                                               lambda rows: self._example(rows)[1]) if self.sample else None
 
     def _tensor(self, values: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(values, dtype=self.dtype, device=self.device)
@@ -149,24 +151,40 @@ class LSTMUpdateEstimator:
         No covariance: the network calibrates only the position's (`LSTMUpdate.estimate_covariance`)."""
         return self.velocity[slots], None
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The ensembles of the tracks at `slots` (P,), each a different track, stepped each with its plot
         of `rows` (P,) from row `indices` (P,) of `prediction`, in one LSTM call: the point estimates'
         positions (P, 3) and calibrated covariances (P, 3, 3). The masks are drawn pair by pair; a call
         of fewer than `batch_rows.GEMM_ROWS` rows (a track of 1 to 3 copies alone) runs on repeated
-        pairs, whose masks are ones (no draws)."""
+        pairs, whose masks are ones (no draws).
+
+        With `prediction` None (a scan's young tracks) the tracks are predicted here in one call (a
+        track's prediction is the same in any call) and stepped as `update` steps each alone, plot by
+        plot: in one call of `step_runtime.LSTMStepAlone`, whose matrix products give each track the
+        rows of a call of its own (MKL's dgemm computes a call's last rows, its row count modulo
+        `batch_rows.GEMM_ROWS`, in other last bits), or, without dropout, one call per track."""
         plots, count = tracks.plots, len(slots)
+        step = self._step
+        if prediction is None:
+            prediction, indices = self.predict(tracks, slots, plots.time[rows]), np.arange(count)
+            if not self.sample:
+                stepped = [self.update_pairs(tracks, slots[k:k + 1], rows[k:k + 1], prediction, indices[k:k + 1])
+                           for k in range(count)]
+                return np.concatenate([p for p, _ in stepped]), np.concatenate([c for _, c in stepped])
+            step = self._step_alone
         moved = prediction.state
         padded = batch_rows.padding(count, self.samples)
         at = torch.as_tensor(np.asarray(indices)[padded], device=self.device)
         z, R = self._tensor(plots.position[rows[padded]]), self._tensor(plots.covariance[rows[padded]])
         masks = ()
         if self.sample:
-            drawn = [self.model.dropout_masks(self.samples, self.generator) for _ in range(count)]
-            masks = (torch.stack(drawn + [torch.ones_like(drawn[0])] * (len(padded) - count)).to(self.device),)
+            drawn = self.model.dropout_masks(self.samples, self.generator, tracks=count)
+            if len(padded) > count:
+                drawn = torch.cat([drawn, drawn.new_ones((len(padded) - count, *drawn.shape[1:]))])
+            masks = (drawn.to(self.device),)
         with torch.no_grad():
-            *after, position, covariance = self._step(*(part[at] for part in _parts(moved.ensemble)), z, R,
-                                                      moved.dt[at], *masks)
+            *after, position, covariance = step(*(part[at] for part in _parts(moved.ensemble)), z, R,
+                                                moved.dt[at], *masks)
         self._store(slots, Ensemble(*(part[:count] for part in after)), plots.time[rows])
         return position[:count].cpu().numpy(), covariance[:count].cpu().numpy()

@@ -95,12 +95,15 @@ class NetworkEstimator:
         positions, _ = self.update_pairs(tracks, np.array([slot]), np.array([row]), prediction, np.array([index]))
         return positions[0], None
 
-    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction,
+    def update_pairs(self, tracks: LiveTracks, slots: np.ndarray, rows: np.ndarray, prediction: Prediction | None,
                      indices: np.ndarray) -> tuple[np.ndarray, None]:
         """The states after the tracks at `slots` (P,), each a different track, take their plots `rows` (P,),
-        from rows `indices` (P,) of `prediction`: positions (P, 3). A track with `filter_plots` plots, the
+        from rows `indices` (P,) of `prediction` (None: the predictor runs here, each track to its plot's
+        time): positions (P, 3). A track with `filter_plots` plots, the
         new one included, is denoised by the filter network (one call for all such pairs) on its last
         plots; a younger one takes the mean of its predicted state and the plot (position and range)."""
+        if prediction is None:
+            prediction, indices = self.predict(tracks, slots, tracks.plots.time[rows]), np.arange(len(slots))
         features = tracks.plots.features
         states = 0.5 * (prediction.state[indices] + features[rows])
         filtered = tracks.plot_count[slots] + 1 >= self.filter_plots

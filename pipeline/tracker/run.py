@@ -279,21 +279,49 @@ def _updated_jointly(live: LiveTracks, rows: range, candidates: list[Candidates]
 
 def _updated_ahead(live: LiveTracks, rows: range, candidates: list[Candidates], chosen: list[tuple | None],
                    estimator: Estimator) -> dict[int, tuple[np.ndarray, np.ndarray | None]]:
-    """The updates of the batch's plots that chose a mature track, by plot row, made in one call
-    (a pairwise estimator's `update_pairs`) before the plots are taken in time order: each
-    resumes from the batch's prediction with its own plot only, so the order changes nothing. A
-    chosen track that management deletes before its plot's turn got its filter updated for
-    nothing: the plot starts a track instead, and `start` resets the slot's filter. A track chosen
-    by two plots (an assigner that allows it) is left to the plot-by-plot updates."""
-    picked = [(row, choice[0], _prediction_row(c, choice[2]), c.prediction)
-              for row, c, choice in zip(rows, candidates, chosen) if choice is not None and c.mature[choice[2]]]
-    slots = np.array([slot for _, slot, _, _ in picked], dtype=np.int64)
-    if not picked or len(np.unique(slots)) < len(slots):
+    """The updates of the batch's plots that chose a track, by plot row, made before the plots are taken
+    in time order, in two calls of a pairwise estimator's `update_pairs`: the mature tracks' from the
+    batch's prediction, then the young tracks' (which have none: the estimator predicts them itself, as
+    its `update` would one at a time). Each resumes from the batch's state with its own plot only, so the
+    order changes nothing; the calls are in the order the plot-by-plot updates would come (mature ones
+    first, young ones in time order), so an estimator that draws per update (the LSTM's dropout masks)
+    draws in the same order. A chosen mature track that management deletes before its plot's turn got
+    its filter updated for nothing: the plot starts a track instead, and `start` resets the slot's
+    filter. A chosen young track that will not live to its plot's turn (`LiveTracks.survives`) is left
+    out, as its plot-by-plot update never comes. A track chosen by two plots (an assigner that allows
+    it) leaves updates to the plot-by-plot path: all of them for a mature track (the young tracks' would
+    then come between them there), the young tracks' for a young one. Updating a scan's young tracks together saves
+    a prediction and a step call per young track (two or three network calls each for the learned
+    estimators: most of their time on a busy recording, issue 29)."""
+    mature, young, prediction = [], [], None
+    for row, c, choice in zip(rows, candidates, chosen):
+        if choice is None:
+            continue
+        if c.mature[choice[2]]:
+            mature.append((row, choice[0], _prediction_row(c, choice[2])))
+            prediction = c.prediction
+        else:
+            young.append((row, choice[0], 0))
+    if _twice(mature):
         return {}
-    positions, covariances = estimator.update_pairs(live, slots, np.array([row for row, *_ in picked]),
-                                                    picked[0][3], np.array([index for _, _, index, _ in picked]))
-    return {row: (positions[k], None if covariances is None else covariances[k])
-            for k, (row, *_) in enumerate(picked)}
+    time = live.plots.time
+    young = [] if _twice(young) else [pair for pair in young if live.survives(pair[1], time[pair[0]])]
+    ahead = {}
+    for picked, given in ((mature, prediction), (young, None)):
+        if not picked:
+            continue
+        positions, covariances = estimator.update_pairs(live, np.array([slot for _, slot, _ in picked], dtype=np.int64),
+                                                        np.array([row for row, _, _ in picked]), given,
+                                                        np.array([index for _, _, index in picked]))
+        ahead.update({row: (positions[k], None if covariances is None else covariances[k])
+                      for k, (row, _, _) in enumerate(picked)})
+    return ahead
+
+
+def _twice(pairs: list[tuple[int, int, int]]) -> bool:
+    """Whether a track (the pairs' second item) is chosen by two of the (row, slot, index) `pairs`."""
+    slots = [slot for _, slot, _ in pairs]
+    return len(set(slots)) < len(slots)
 
 
 def _scores(gate: Gate, live: LiveTracks, slots: np.ndarray, rows: int | np.ndarray, estimator: Estimator

@@ -105,6 +105,7 @@ class LiveTracks:
         self.last_seen = np.empty((capacity, 0))
         self._index_radars(plots)
         self._generation = [0] * capacity
+        self._due_at = [0.0] * capacity  # the time each slot falls due next (its heap entry's; `survives`)
         self._due: list[tuple[float, int, int]] = []  # (time the slot falls due, slot, generation)
         self._free = list(range(capacity - 1, -1, -1))
         self._next_id = 0
@@ -126,6 +127,7 @@ class LiveTracks:
         self.scan_period = np.concatenate([self.scan_period, np.zeros(capacity)])
         self.last_seen = np.vstack([self.last_seen, np.full((capacity, self.last_seen.shape[1]), -np.inf)])
         self._generation.extend([0] * capacity)
+        self._due_at.extend([0.0] * capacity)
         self._free = list(range(2 * capacity - 1, capacity - 1, -1))
 
     def _index_radars(self, plots: Plots) -> None:
@@ -239,6 +241,7 @@ class LiveTracks:
 
     def _schedule(self, slot: int, due: float) -> None:
         self._generation[slot] += 1
+        self._due_at[slot] = due
         heapq.heappush(self._due, (due, slot, self._generation[slot]))
 
     def associate(self, slot: int, row: int, position: np.ndarray, error: float = 0.0) -> None:
@@ -294,6 +297,19 @@ class LiveTracks:
             self.weight[slot] = weight
             self._schedule(slot, due + self._silence(slot))
         return removed
+
+    def survives(self, slot: int, now: float) -> bool:
+        """Whether `manage`, called up to `now`, leaves the live track at `slot` alive if nothing else
+        changes it meanwhile (no association): its lowerings replayed on a copy of its weight, as `manage`
+        makes them. The loop updates a scan's chosen young tracks in one call ahead of their plots' turns
+        only if they live to them (`pipeline.tracker.run._updated_ahead`)."""
+        due, weight = self._due_at[slot], self.weight[slot]
+        while due + TIME_QUANTUM_S < now:
+            weight = self.management.lowered(weight)
+            if weight is None:
+                return False
+            due = due + self.management.silence(weight, self.scan_period[slot])
+        return True
 
     def _remove(self, slot: int) -> Track:
         track = self.tracks[slot]
