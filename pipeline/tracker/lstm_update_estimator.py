@@ -27,7 +27,11 @@ the same generator). A pair's numbers do not depend on the pairs beside it (a ca
 assigner, which updates one plot at a time in time order, the updates are those of scoring one plot
 at a time, to the bit (`tests/test_learned_scans.py`). Under global nearest neighbour the loop
 updates a scan's mature tracks in one call before its young ones: the masks then go to the updates
-in another order than plot by plot (as valid a draw, not the same bits).
+in another order than plot by plot (as valid a draw, not the same bits). In that mature call the rows
+past the last multiple of `batch_rows.GEMM_ROWS` (tracks x copies, modulo 4) go through MKL's tail
+kernel, so the last track's last copies may differ in the last bits from a call with other tracks beside
+it: the same recording gives the same bytes, but a track's numbers there depend on the scan's other
+mature tracks (padding the call to whole blocks would remove it, and change today's outputs' last bits).
 """
 
 from __future__ import annotations
