@@ -14,8 +14,14 @@ stage's code as the run's `dvc.lock` hashed it (`tests/test_docs.py` holds it ag
 `dvc.lock`, so a time older than the code it measures fails), and the stages the README walkthrough's
 experiment reruns (`EXPERIMENT_PARAM` and every stage downstream of those that read it) with their time.
 
-    python benchmarks/bench_pipeline.py                      # default params.yaml, ~10 minutes
+A run that stops part way (a stage fails, the machine is needed, the session ends) keeps its copy and resumes
+with `--resume FOLDER`: the stages already timed keep their times (`progress.json` in the folder, written after
+each stage, holds them with the commit and params the copy was made from), the stage that was cut runs again
+whole, and the rest follow. Each stage's time is one uninterrupted measurement either way.
+
+    python benchmarks/bench_pipeline.py                      # default params.yaml, 2-3 hours on 2 cores
     python benchmarks/bench_pipeline.py --params tiny.yaml --out /tmp/speed.json --no-readme
+    python benchmarks/bench_pipeline.py --resume /tmp/bench-pipeline-abc123   # go on where that run stopped
 
 Run it on an otherwise idle machine: the stages use both cores.
 """
@@ -23,6 +29,7 @@ Run it on an otherwise idle machine: the stages use both cores.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import shutil
@@ -72,13 +79,12 @@ def reruns(stages: dict, param: str) -> list[str]:
     return [name for name in stages if name in rerun]
 
 
-def measured(copy: Path, stages: dict, results: list[dict]) -> dict:
+def measured(copy: Path, stages: dict, results: list[dict], commit: str) -> dict:
     """What the run measured: the commit of the code copied, each stage's code deps with the md5 the copy's
     `dvc.lock` gave them, and the walkthrough experiment's stages and seconds."""
     lock = yaml.safe_load((copy / "dvc.lock").read_text())["stages"]
     seconds = {result["stage"]: result["seconds"] for result in results}
     again = reruns(stages, EXPERIMENT_PARAM)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True).stdout.strip()
     return {"commit": commit,
             "code": {name: {dep["path"]: dep["md5"] for dep in entry.get("deps", []) if dep["path"].startswith("pipeline/")}
                      for name, entry in sorted(lock.items())},
@@ -93,6 +99,27 @@ def machine() -> dict:
             "processor": platform.processor() or platform.machine()}
 
 
+PROGRESS = "progress.json"  # in a run's folder: what `--resume` goes on from
+
+
+def started(args: argparse.Namespace) -> tuple[Path, dict]:
+    """The run's folder and its progress: a new copy of the repository (the commit it was made from, no stage
+    timed yet), or, with `--resume`, the folder given and the progress written there."""
+    if args.resume:
+        progress_file = args.resume / PROGRESS
+        if not progress_file.is_file():
+            raise SystemExit(f"--resume {args.resume}: no {PROGRESS} there (not a folder this benchmark kept)")
+        return args.resume, json.loads(progress_file.read_text())
+    folder = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
+    copy = copy_repository(folder / "repository")
+    if args.params:
+        shutil.copyfile(args.params, copy / "params.yaml")
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True).stdout.strip()
+    progress = {"commit": commit, "params": args.params.name if args.params else None, "results": []}
+    io.write_json(progress, folder / PROGRESS)
+    return folder, progress
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--params", type=Path, help="params file to run with (default: the repository's params.yaml)")
@@ -100,19 +127,22 @@ def main() -> None:
                         help="where the JSON goes (default: %(default)s)")
     parser.add_argument("--no-readme", action="store_true", help="do not regenerate docs/speed.md from the result")
     parser.add_argument("--keep", action="store_true", help="keep the temporary copy and print where it is")
+    parser.add_argument("--resume", type=Path, metavar="FOLDER",
+                        help="go on with the run kept in FOLDER (the folder a stopped run printed)")
     args = parser.parse_args()
 
-    folder = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
+    folder, progress = started(args)
+    copy, results, finished = folder / "repository", progress["results"], False
     try:
-        copy = copy_repository(folder / "repository")
-        if args.params:
-            shutil.copyfile(args.params, copy / "params.yaml")
         stages = list(yaml.safe_load((copy / "dvc.yaml").read_text())["stages"])
         env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
         env.pop("MLFLOW_TRACKING_URI", None)  # the copy's own mlflow.db, as on a fresh clone
         log = folder / "repro.log"
-        results, total = [], 0.0
-        for stage in stages:
+        total = sum(result["seconds"] for result in results)
+        for result in results:
+            print(f"{result['stage']:18s} {result['seconds']:7.1f} s  (timed before the resume)", flush=True)
+        timed_already = {result["stage"] for result in results}
+        for stage in [stage for stage in stages if stage not in timed_already]:
             command = [sys.executable, "-m", "dvc", "repro", "--single-item", "--force", stage]
             seconds, peak, code = timed(command, copy, env, log)
             if code != 0:
@@ -120,31 +150,32 @@ def main() -> None:
             total += seconds
             results.append({"stage": stage, "seconds": round(seconds, 1), "peak_memory_mib": round(peak),
                             "load_1min": round(os.getloadavg()[0], 2)})  # other work on the machine shows here
+            io.write_json(progress, folder / PROGRESS)
             print(f"{stage:18s} {seconds:7.1f} s  {peak:6.0f} MiB  (total {total / 60:.1f} min)", flush=True)
         params = yaml.safe_load((copy / "params.yaml").read_text())
         report = {
             "what": "a fresh `dvc repro`, stage by stage (`dvc repro --single-item --force`), default params"
-                    if not args.params else f"a fresh `dvc repro`, stage by stage, params from {args.params.name}",
+                    if not progress["params"] else f"a fresh `dvc repro`, stage by stage, params from {progress['params']}",
             "command": "python benchmarks/bench_pipeline.py",
             "date": datetime.now(timezone.utc).strftime("%Y-%m-%d"),
             "machine": machine(),
             "workers": params.get("compute", {}).get("workers"),
             "total_seconds": round(total, 1),
             "stages": results,
-            **measured(copy, yaml.safe_load((copy / "dvc.yaml").read_text())["stages"], results),
+            **measured(copy, yaml.safe_load((copy / "dvc.yaml").read_text())["stages"], results, progress["commit"]),
         }
         io.write_json(report, args.out)
+        finished = True
         print(f"fresh dvc repro: {total / 60:.1f} min; written to {args.out}")
         if not args.no_readme:
             subprocess.run([sys.executable, "-m", "pipeline", "readme", "--readme", str(REPOSITORY / "README.md"),
                             "--docs", str(REPOSITORY / "docs"), "--reports", str(REPOSITORY / "reports"),
                             "--package", str(REPOSITORY / "pipeline")], cwd=REPOSITORY, check=True)
     finally:
-        if args.keep:
-            print(f"the copy is in {folder}")
+        if args.keep or args.resume or not finished:
+            print(f"the copy is in {folder}" + ("" if finished else f"; go on with --resume {folder}"))
         else:
             shutil.rmtree(folder, ignore_errors=True)
-
 
 if __name__ == "__main__":
     main()
