@@ -108,7 +108,8 @@ def started(args: argparse.Namespace) -> tuple[Path, dict]:
     if args.resume:
         progress_file = args.resume / PROGRESS
         if not progress_file.is_file():
-            raise SystemExit(f"--resume {args.resume}: no {PROGRESS} there (not a folder this benchmark kept)")
+            print(f"--resume {args.resume}: no {PROGRESS} there (not a folder this benchmark kept)", file=sys.stderr)
+            raise SystemExit(2)
         return args.resume, json.loads(progress_file.read_text())
     folder = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
     copy = copy_repository(folder / "repository")
