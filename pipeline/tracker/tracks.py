@@ -155,21 +155,21 @@ class LiveTracks:
         self.scan_period[slot] = self._periods[column]
         self.last_seen[slot, column] = self.plots.time[row]
 
-    def _key(self, position: np.ndarray) -> int:
-        """The key of the cube holding `position` (3,) m."""
-        x, y, z = (math.floor(value / self.cell_m) + _AXIS // 2 for value in position.tolist())
-        return (x * _AXIS + y) * _AXIS + z
+    def _key(self, x: float, y: float, z: float) -> int:
+        """The key of the cube holding the point (x, y, z) m (finite)."""
+        cell, half = self.cell_m, _AXIS // 2
+        return ((math.floor(x / cell) + half) * _AXIS + math.floor(y / cell) + half) * _AXIS + math.floor(z / cell) + half
 
     def _place(self, slot: int) -> None:
         """File `slot` under the cube of its position (after a start or a position change); a track
         whose position is not finite (never within any distance) under none."""
-        position = self.position[slot]
+        x, y, z = self.position[slot].tolist()
         old = self._cell_of.get(slot)
-        if not np.isfinite(position).all():
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             if old is not None:
                 self._unplace(slot)
             return
-        key = self._key(position)
+        key = self._key(x, y, z)
         if old == key:
             return
         if old is not None:
@@ -190,13 +190,12 @@ class LiveTracks:
         """Slots (sorted) of the tracks whose position is within `distance_m` of plot `row`: the
         tracks of the cubes around the plot's (all placed tracks when those cubes outnumber the
         filled ones, or the distance is infinite), tested exactly."""
-        reach = np.ceil(distance_m / self.cell_m)
-        cells = self._cells
-        if not (2 * reach + 1) ** 3 < len(cells):  # NaN (infinite distance and cube) included
+        ratio, cells = distance_m / self.cell_m, self._cells
+        if not (math.isfinite(ratio) and (2 * math.ceil(ratio) + 1) ** 3 < len(cells)):  # infinite or NaN included
             slots = list(self._cell_of)
         else:
-            centre = self._key(self.plots.position[row])
-            slots = [slot for step in _neighbours(int(reach)) for slot in cells.get(centre + step, ())]
+            centre = self._key(*self.plots.position[row].tolist())
+            slots = [slot for step in _neighbours(math.ceil(ratio)) for slot in cells.get(centre + step, ())]
         if not slots:
             return np.empty(0, dtype=np.int64)
         slots = np.array(sorted(slots), dtype=np.int64)
