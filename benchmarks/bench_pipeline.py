@@ -17,7 +17,9 @@ experiment reruns (`EXPERIMENT_PARAM` and every stage downstream of those that r
 A run that stops part way (a stage fails, the machine is needed, the session ends) keeps its copy and resumes
 with `--resume FOLDER`: the stages already timed keep their times (`progress.json` in the folder, written after
 each stage, holds them with the commit and params the copy was made from), the stage that was cut runs again
-whole, and the rest follow. Each stage's time is one uninterrupted measurement either way.
+whole, and the rest follow. Each stage's time is one uninterrupted measurement either way. A stage can also be
+paused where it stands (`kill -USR1 PID`, the PID printed at the start; `kill -USR2 PID` continues it): the time
+it stood stopped is not counted.
 
     python benchmarks/bench_pipeline.py                      # default params.yaml, 2-3 hours on 2 cores
     python benchmarks/bench_pipeline.py --params tiny.yaml --out /tmp/speed.json --no-readme
@@ -33,6 +35,7 @@ import json
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,13 +52,43 @@ from pipeline import io  # noqa: E402  (the repository's package, whichever fold
 from tests.project import copy_repository  # noqa: E402  (a fresh clone's files in a new git repository)
 
 
-def timed(command: list[str], cwd: Path, env: dict[str, str], log: Path) -> tuple[float, float, int]:
-    """Wall seconds, peak RSS (MiB) of the process tree, and exit code of one command."""
-    start = time.perf_counter()
+class Pauses:
+    """The stage running now can be paused and continued from outside: `kill -USR1 PID` stops its process group
+    (DVC, the stage, its Dask workers), `kill -USR2 PID` continues it; the time it stood stopped is not counted as
+    the stage's. So a run that spans two sessions on one machine keeps the stage it was in, and its time."""
+
+    def __init__(self) -> None:
+        self.group: int | None = None
+        self.stopped_at: float | None = None
+        self.stopped_s = 0.0
+        signal.signal(signal.SIGUSR1, self.pause)
+        signal.signal(signal.SIGUSR2, self.resume)
+
+    def pause(self, *_: object) -> None:
+        if self.group is not None and self.stopped_at is None:
+            os.killpg(self.group, signal.SIGSTOP)
+            self.stopped_at = time.perf_counter()
+            print(f"paused (kill -USR2 {os.getpid()} continues)", flush=True)
+
+    def resume(self, *_: object) -> None:
+        if self.group is not None and self.stopped_at is not None:
+            os.killpg(self.group, signal.SIGCONT)
+            self.stopped_s += time.perf_counter() - self.stopped_at
+            self.stopped_at = None
+            print("continued", flush=True)
+
+
+def timed(command: list[str], cwd: Path, env: dict[str, str], log: Path, pauses: Pauses) -> tuple[float, float, int]:
+    """Wall seconds (less any time `pauses` held it stopped), peak RSS (MiB) of the process tree, and exit code
+    of one command, run in a process group of its own."""
+    start, pauses.stopped_s = time.perf_counter(), 0.0
     with log.open("ab") as output:
-        child = subprocess.Popen(command, cwd=cwd, env=env, stdout=output, stderr=subprocess.STDOUT)
+        child = subprocess.Popen(command, cwd=cwd, env=env, stdout=output, stderr=subprocess.STDOUT,
+                                 start_new_session=True)
+        pauses.group = child.pid
         _, status, usage = os.wait4(child.pid, 0)
-    return time.perf_counter() - start, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
+        pauses.group = None
+    return time.perf_counter() - start - pauses.stopped_s, usage.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status)
 
 
 EXPERIMENT_PARAM = "training.predictor.learning_rate"  # the README walkthrough's `dvc exp run -S ...`
@@ -139,13 +172,16 @@ def main() -> None:
         env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
         env.pop("MLFLOW_TRACKING_URI", None)  # the copy's own mlflow.db, as on a fresh clone
         log = folder / "repro.log"
+        pauses = Pauses()
+        print(f"pid {os.getpid()}: kill -USR1 {os.getpid()} pauses the stage running, kill -USR2 continues it",
+              flush=True)
         total = sum(result["seconds"] for result in results)
         for result in results:
             print(f"{result['stage']:18s} {result['seconds']:7.1f} s  (timed before the resume)", flush=True)
         timed_already = {result["stage"] for result in results}
         for stage in [stage for stage in stages if stage not in timed_already]:
             command = [sys.executable, "-m", "dvc", "repro", "--single-item", "--force", stage]
-            seconds, peak, code = timed(command, copy, env, log)
+            seconds, peak, code = timed(command, copy, env, log, pauses)
             if code != 0:
                 raise SystemExit(f"stage {stage} failed (exit {code}); its output:\n{log.read_text()[-4000:]}")
             total += seconds
