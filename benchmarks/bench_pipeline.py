@@ -19,7 +19,9 @@ with `--resume FOLDER`: the stages already timed keep their times (`progress.jso
 each stage, holds them with the commit and params the copy was made from), the stage that was cut runs again
 whole, and the rest follow. Each stage's time is one uninterrupted measurement either way. A stage can also be
 paused where it stands (`kill -USR1 PID`, the PID printed at the start; `kill -USR2 PID` continues it): the time
-it stood stopped is not counted.
+it stood stopped is not counted. A Dask stage's workers miss their heartbeats while stopped: on continuing, the
+scheduler restarts them and their units in flight run again (the engine's lost-worker path, the same results),
+which the stage's time includes; its progress line's rate counts the stopped time until it catches up.
 
     python benchmarks/bench_pipeline.py                      # default params.yaml, 2-3 hours on 2 cores
     python benchmarks/bench_pipeline.py --params tiny.yaml --out /tmp/speed.json --no-readme
