@@ -233,7 +233,8 @@ COMMANDS = {
                  "python -m pipeline evaluate --simulated data/simulated --routes data/routes --models models",
                  ["params", "simulated", "routes", "models", "reports"]),
     "evaluate-sites": (_evaluate_sites, "Fly the evaluated routes past a radar at each of evaluate.sites and score "
-                       "every run there (reports/site_metrics.json; the training site's row from evaluate's).",
+                       "the runs of evaluate.site_runs (all of evaluate.runs when []) and the references there "
+                       "(reports/site_metrics.json; the training site's row from evaluate's).",
                        "python -m pipeline evaluate-sites --models models --reports reports",
                        ["params", "models", "reports"]),
     "evaluate-scenes": (_evaluate_scenes, "Track the multi-target scenes with every run of evaluate.scene_runs and "
