@@ -27,6 +27,7 @@ Stone Soup tracks 15-100 plots a second: a setting takes about 5 minutes on one 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import sys
 import tempfile
@@ -73,8 +74,7 @@ def evaluate_unit(state: dict, association: str, min_points: int, delete_after_s
     peer = params.peers.stone_soup
     settings = stone_soup.StoneSoupSettings.from_params(association, peer, state["cv"],
                                                         params.tracker.association.kalman_gate_probability)
-    settings = stone_soup.StoneSoupSettings(**{**settings.__dict__, "min_points": min_points,
-                                               "delete_after_s": delete_after_s})
+    settings = dataclasses.replace(settings, min_points=min_points, delete_after_s=delete_after_s)
     start = time.perf_counter()
     updates = stone_soup.track_with_stone_soup(recording.scene.plots, settings)
     return scene_evaluation.scene_result(params, recording.scene, updates, updates["confirmed"],
